@@ -1,0 +1,187 @@
+"""The EAV: the paper's equation, equilibria, drag, seeded disturbances, ground contact."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from viva_sitl.dynamics import (
+    EavCommand,
+    EavParams,
+    EavState,
+    WindParams,
+    rot_body_to_ned,
+    step,
+)
+from viva_sitl.dynamics.rotation import euler_from_quat, euler_from_rot, quat_from_euler
+
+# NED <-> the paper's z-up world (north, west, up); FRD <-> FLU body. C is its own inverse.
+C = np.diag([1.0, -1.0, -1.0])
+
+
+def paper_step_zup(x1, x2, roll, pitch, yaw, thrust, xi, m, kd, g, dt):
+    """The paper's equation written independently in a z-up frame with thrust along body +z."""
+    r_paper = C @ rot_body_to_ned(roll, pitch, yaw) @ C
+    e3 = np.array([0.0, 0.0, 1.0])
+    return 2 * x1 - x2 + dt**2 / m * (r_paper @ e3 * thrust - m * g * e3 - kd / dt * (x1 - x2) + xi)
+
+
+def test_paper_preset_numbers() -> None:
+    p = EavParams.paper()
+    assert (p.mass_kg, p.drag_kd_n_s_m, p.gravity_m_s2) == (0.468, 0.15, 9.81)
+    assert p.dt_s == pytest.approx(1 / 30)
+    assert EavParams().rate_hz >= 250
+
+
+@pytest.mark.parametrize("params", [EavParams.paper(), EavParams()], ids=["paper-30Hz", "default-250Hz"])
+def test_step_matches_paper_equation(params: EavParams) -> None:
+    rng = np.random.default_rng(7)
+    state = EavState.at_rest((3.0, -2.0, -40.0), dt_s=params.dt_s, vel_ned_m_s=(1.0, 0.5, -0.3))
+    x1 = C @ state.pos_ned_m
+    x2 = C @ state.prev_pos_ned_m
+    for _ in range(200):
+        roll, pitch, yaw = rng.uniform(-0.5, 0.5, 3)
+        thrust = float(rng.uniform(2.0, 7.0))
+        state = step(state, EavCommand(roll, pitch, yaw, thrust), params)
+        x0 = paper_step_zup(
+            x1, x2, roll, pitch, yaw, thrust, np.zeros(3), params.mass_kg, params.drag_kd_n_s_m,
+            params.gravity_m_s2, params.dt_s,
+        )  # fmt: skip
+        assert np.max(np.abs(C @ state.pos_ned_m - x0)) < 1e-9
+        x1, x2 = x0, x1
+
+
+def test_hover_equilibrium() -> None:
+    p = EavParams()
+    s = EavState.at_rest((0, 0, -20), dt_s=p.dt_s)
+    for _ in range(2500):
+        s = step(s, EavCommand(0, 0, 0.3, p.hover_thrust_n), p)
+    assert np.allclose(s.pos_ned_m, (0, 0, -20), atol=1e-9)
+    assert np.allclose(s.vel_ned_m_s, 0, atol=1e-9)
+    assert not s.landed
+
+
+def test_free_fall_without_drag() -> None:
+    p = EavParams(drag_kd_n_s_m=0.0)
+    s = EavState.at_rest((0, 0, -100), dt_s=p.dt_s)
+    n = 250  # 1 s
+    for _ in range(n):
+        s = step(s, EavCommand(0, 0, 0, 0.0), p)
+    t = n * p.dt_s
+    # Verlet-type recursion: z_k = z_0 + g dt^2 k(k+1)/2 from rest (X_{-1} = X_0), exact for constant force
+    assert s.pos_ned_m[2] == pytest.approx(-100 + p.gravity_m_s2 * p.dt_s**2 * n * (n + 1) / 2, abs=1e-9)
+    assert s.pos_ned_m[2] == pytest.approx(-100 + 0.5 * p.gravity_m_s2 * t * t, abs=0.03)
+    assert s.vel_ned_m_s[2] == pytest.approx(p.gravity_m_s2 * t, rel=1e-9)
+
+
+def test_drag_terminal_velocity() -> None:
+    p = EavParams()
+    s = EavState.at_rest((0, 0, -5000), dt_s=p.dt_s)
+    for _ in range(250 * 60):
+        s = step(s, EavCommand(0, 0, 0, 0.0), p)
+    v_terminal = p.mass_kg * p.gravity_m_s2 / p.drag_kd_n_s_m
+    assert s.vel_ned_m_s[2] == pytest.approx(v_terminal, rel=1e-3)
+
+
+def test_tilt_accelerates_in_the_expected_direction() -> None:
+    p = EavParams()
+    s = EavState.at_rest((0, 0, -20), dt_s=p.dt_s)
+    tilt = math.radians(10)
+    thrust = p.hover_thrust_n / math.cos(tilt)
+    for _ in range(250):
+        s = step(s, EavCommand(0.0, -tilt, math.pi / 2, thrust), p)  # nose down, facing east
+    assert s.vel_ned_m_s[1] > 1.0  # moves east
+    assert abs(s.vel_ned_m_s[0]) < 1e-9
+    assert abs(s.vel_ned_m_s[2]) < 1e-9  # thrust compensates the tilt
+
+
+def test_constant_wind_pushes_downwind() -> None:
+    p = EavParams(wind=WindParams(mean_wind_ned_m_s=(0.0, 3.0, 0.0)))
+    s = EavState.at_rest((0, 0, -20), dt_s=p.dt_s)
+    for _ in range(250 * 120):
+        s = step(s, EavCommand(0, 0, 0, p.hover_thrust_n), p)
+    assert s.vel_ned_m_s[1] == pytest.approx(3.0, rel=1e-3)  # drifts with the air mass
+
+
+def _rollout(seed: int, n: int = 2000) -> list[EavState]:
+    p = EavParams(wind=WindParams(mean_wind_ned_m_s=(1.0, 0.0, 0.0), gust_std_m_s=1.5, force_noise_std_n=0.05))
+    rng = np.random.default_rng(seed)
+    s = EavState.at_rest((0, 0, -30), dt_s=p.dt_s)
+    out = []
+    for k in range(n):
+        s = step(s, EavCommand(0.05 * math.sin(k / 50), 0.02, 0.1, p.hover_thrust_n), p, rng)
+        out.append(s)
+    return out
+
+
+def test_seeded_determinism_bit_identical() -> None:
+    a, b, c = _rollout(42), _rollout(42), _rollout(43)
+    for sa, sb in zip(a, b, strict=True):
+        assert sa.pos_ned_m.tobytes() == sb.pos_ned_m.tobytes()
+        assert sa.gust_ned_m_s.tobytes() == sb.gust_ned_m_s.tobytes()
+    assert a[-1].pos_ned_m.tobytes() != c[-1].pos_ned_m.tobytes()
+
+
+def test_random_disturbance_requires_a_generator() -> None:
+    p = EavParams(wind=WindParams(gust_std_m_s=1.0))
+    with pytest.raises(ValueError, match="Generator"):
+        step(EavState.at_rest((0, 0, -5), dt_s=p.dt_s), EavCommand(0, 0, 0, 1.0), p, None)
+
+
+def test_ground_contact_landing_and_touchdown_speed() -> None:
+    p = EavParams()
+    s = EavState.at_rest((0, 0, -2), dt_s=p.dt_s, vel_ned_m_s=(0.0, 0.0, 0.0))
+    thrust = p.hover_thrust_n * 0.9
+    touched_at = None
+    for k in range(250 * 5):
+        s = step(s, EavCommand(0, 0, 0, thrust), p)
+        assert s.pos_ned_m[2] <= p.ground_z_ned_m + 1e-12  # never below ground
+        if s.landed and touched_at is None:
+            touched_at = k
+    assert touched_at is not None
+    assert s.landed and s.touchdown_speed_m_s is not None
+    # constant 0.1 g downward (minus drag) over 2 m: speed is below the drag-free bound sqrt(2 a h)
+    assert 0.5 < s.touchdown_speed_m_s < math.sqrt(2 * 0.1 * p.gravity_m_s2 * 2) + 1e-6
+    assert np.allclose(s.vel_ned_m_s, 0)
+    # full thrust lifts off again
+    for _ in range(50):
+        s = step(s, EavCommand(0, 0, 0, p.max_thrust_n), p)
+    assert not s.landed and s.altitude_m > 0.0
+
+
+def test_resting_on_ground_stays_landed() -> None:
+    p = EavParams()
+    s = EavState.at_rest(dt_s=p.dt_s)
+    assert s.landed
+    for _ in range(100):
+        s = step(s, EavCommand(0, 0, 0, 0.0), p)
+    assert s.landed and s.altitude_m == 0.0
+
+
+def test_attitude_first_order_response() -> None:
+    p = EavParams(attitude_tau_s=0.1)
+    s = EavState.at_rest((0, 0, -10), dt_s=p.dt_s)
+    for _ in range(25):  # one time constant
+        s = step(s, EavCommand(0.2, 0.0, 0.0, p.hover_thrust_n), p)
+    assert s.roll_rad == pytest.approx(0.2 * (1 - math.exp(-1)), rel=1e-6)
+
+
+def test_non_finite_command_rejected() -> None:
+    p = EavParams()
+    with pytest.raises(ValueError, match="finite"):
+        step(EavState.at_rest(dt_s=p.dt_s), EavCommand(math.nan, 0, 0, 1.0), p)
+
+
+def test_bad_params_rejected() -> None:
+    with pytest.raises(ValueError, match="mass_kg"):
+        EavParams(mass_kg=0.0)
+
+
+def test_rotation_round_trips() -> None:
+    rng = np.random.default_rng(1)
+    for _ in range(50):
+        r, p, y = rng.uniform(-1.2, 1.2), rng.uniform(-1.2, 1.2), rng.uniform(-3, 3)
+        assert np.allclose(euler_from_rot(rot_body_to_ned(r, p, y)), (r, p, y))
+        assert np.allclose(euler_from_quat(*quat_from_euler(r, p, y)), (r, p, y))

@@ -1,0 +1,131 @@
+"""The paper's discrete EAV model, as a pure transition function.
+
+Paper (z up, thrust along body +z):
+    X_k = 2 X_{k-1} - X_{k-2} + dt²/m ( R_k T_k e3 - m g e3 - (k_d/dt)(X_{k-1} - X_{k-2}) + xi_k )
+Here in NED/FRD (z down, thrust along body -z), the same equation reads
+    X_k = 2 X_{k-1} - X_{k-2} + dt²/m ( -R_k T_k e3 + m g e3 - (k_d/dt)(X_{k-1} - X_{k-2}) + xi_k )
+No I/O, no clock: the caller passes the state, the command, the parameters and the random generator.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import numpy as np
+from numpy.typing import NDArray
+
+from viva_sitl.dynamics.params import EavParams, WindParams
+from viva_sitl.dynamics.rotation import rot_body_to_ned, wrap_pi
+from viva_sitl.dynamics.state import EavCommand, EavState, vec3
+
+_E3 = np.array([0.0, 0.0, 1.0])
+
+
+def disturbance_force_n(
+    state: EavState, wind: WindParams, params: EavParams, rng: np.random.Generator | None
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """xi_k: drag of the vehicle relative to the air (mean wind + OU gust) plus white force noise.
+
+    Returns (force_ned_n, next_gust_ned_m_s). Draws from `rng` only when a random term is enabled, so a
+    disturbance-free run never consumes random numbers.
+    """
+    gust = state.gust_ned_m_s
+    if wind.gust_std_m_s > 0.0:
+        if rng is None:
+            raise ValueError("gusts need a numpy Generator")
+        a = math.exp(-params.dt_s / wind.gust_tau_s)
+        gust = a * gust + wind.gust_std_m_s * math.sqrt(1.0 - a * a) * rng.standard_normal(3)
+    air_ned_m_s = np.asarray(wind.mean_wind_ned_m_s, dtype=np.float64) + gust
+    # The drag term of the model acts on ground velocity; wind adds k_d * v_air so drag acts on airspeed.
+    force = params.drag_kd_n_s_m * air_ned_m_s
+    if wind.force_noise_std_n > 0.0:
+        if rng is None:
+            raise ValueError("force noise needs a numpy Generator")
+        force = force + wind.force_noise_std_n * rng.standard_normal(3)
+    return force, vec3(gust)
+
+
+def _attitude_response(state: EavState, cmd: EavCommand, params: EavParams) -> NDArray[np.float64]:
+    roll = max(-params.max_tilt_rad, min(params.max_tilt_rad, cmd.roll_rad))
+    pitch = max(-params.max_tilt_rad, min(params.max_tilt_rad, cmd.pitch_rad))
+    target = np.array([roll, pitch, cmd.yaw_rad])
+    if params.attitude_tau_s <= 0.0:
+        target[2] = wrap_pi(target[2])
+        return target
+    alpha = 1.0 - math.exp(-params.dt_s / params.attitude_tau_s)
+    err = target - state.att_rpy_rad
+    err[2] = wrap_pi(err[2])
+    out = state.att_rpy_rad + alpha * err
+    out[2] = wrap_pi(out[2])
+    return out
+
+
+def paper_update(
+    pos_km1: NDArray[np.float64],
+    pos_km2: NDArray[np.float64],
+    rot_body_to_ned_k: NDArray[np.float64],
+    thrust_n: float,
+    xi_n: NDArray[np.float64],
+    params: EavParams,
+) -> NDArray[np.float64]:
+    """One application of the paper's equation in NED (no ground contact)."""
+    dt = params.dt_s
+    m = params.mass_kg
+    force = (
+        -rot_body_to_ned_k @ _E3 * thrust_n
+        + m * params.gravity_m_s2 * _E3
+        - (params.drag_kd_n_s_m / dt) * (pos_km1 - pos_km2)
+        + xi_n
+    )
+    return np.asarray(2.0 * pos_km1 - pos_km2 + (dt * dt / m) * force, dtype=np.float64)
+
+
+def step(
+    state: EavState,
+    cmd: EavCommand,
+    params: EavParams,
+    rng: np.random.Generator | None = None,
+) -> EavState:
+    """Advance the EAV by one step of params.dt_s. Pure: same inputs (and rng state) -> same output."""
+    if not (
+        math.isfinite(cmd.roll_rad)
+        and math.isfinite(cmd.pitch_rad)
+        and math.isfinite(cmd.yaw_rad)
+        and math.isfinite(cmd.thrust_n)
+    ):
+        raise ValueError(f"EAV command must be finite, got {cmd}")
+    thrust = max(0.0, min(params.max_thrust_n, cmd.thrust_n))
+    att = _attitude_response(state, cmd, params)
+    rot = rot_body_to_ned(float(att[0]), float(att[1]), float(att[2]))
+    xi, gust = disturbance_force_n(state, params.wind, params, rng)
+    new_pos = paper_update(state.pos_ned_m, state.prev_pos_ned_m, rot, thrust, xi, params)
+    prev_pos = state.pos_ned_m
+
+    landed = False
+    touchdown = state.touchdown_speed_m_s
+    ground = params.ground_z_ned_m
+    if new_pos[2] >= ground:
+        # Ground contact: the vehicle cannot sink below the ground; contact kills velocity (no bounce, no slide).
+        if not state.landed:
+            touchdown = float(np.linalg.norm((new_pos - prev_pos) / params.dt_s))
+        net_up_n = float(-(rot @ _E3)[2] * thrust) - params.mass_kg * params.gravity_m_s2
+        new_pos = np.array([prev_pos[0], prev_pos[1], ground])
+        prev_pos = vec3(new_pos)
+        landed = net_up_n <= 1e-9
+        if not landed:
+            # Lift-off this step: stay on the ground plane, with no downward velocity, but not "landed".
+            pass
+    return replace(
+        state,
+        time_s=state.time_s + params.dt_s,
+        step=state.step + 1,
+        pos_ned_m=vec3(new_pos),
+        prev_pos_ned_m=vec3(prev_pos),
+        att_rpy_rad=vec3(att),
+        thrust_n=thrust,
+        gust_ned_m_s=gust,
+        landed=landed,
+        touchdown_speed_m_s=touchdown,
+        dt_s=params.dt_s,
+    )

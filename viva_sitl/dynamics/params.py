@@ -1,0 +1,54 @@
+"""Parameters of the Emulated Aerial Vehicle (EAV). Frozen, typed, with units in the comments."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+
+@dataclass(frozen=True)
+class WindParams:
+    """Seeded aerodynamic disturbance, expressed as a force on the vehicle (the paper's xi_k)."""
+
+    mean_wind_ned_m_s: tuple[float, float, float] = (0.0, 0.0, 0.0)  # m/s, constant wind (NED)
+    gust_std_m_s: float = 0.0  # m/s, std-dev of the Ornstein-Uhlenbeck gust velocity per axis
+    gust_tau_s: float = 2.0  # s, correlation time of gusts
+    force_noise_std_n: float = 0.0  # N, white force noise per axis per step
+
+
+@dataclass(frozen=True)
+class EavParams:
+    """The paper's discrete model parameters. `paper()` reproduces the reference implementation."""
+
+    mass_kg: float = 0.468  # kg
+    drag_kd_n_s_m: float = 0.15  # N·s/m, linear drag coefficient k_d
+    gravity_m_s2: float = 9.81  # m/s²
+    dt_s: float = 1.0 / 250.0  # s, physics step
+    attitude_tau_s: float = 0.0  # s, first-order attitude response; 0 = ideal attitude controller (paper)
+    max_thrust_n: float = 2.0 * 0.468 * 9.81  # N, thrust ceiling (thrust commands are clipped to [0, max])
+    max_tilt_rad: float = 1.0  # rad, commanded roll/pitch are clipped to +-this
+    ground_z_ned_m: float = 0.0  # m, ground plane height in NED (z down): the vehicle cannot go below it
+    wind: WindParams = field(default_factory=WindParams)
+
+    def __post_init__(self) -> None:
+        for name in ("mass_kg", "dt_s", "gravity_m_s2"):
+            value = getattr(self, name)
+            if not (value > 0.0):
+                raise ValueError(f"EavParams.{name} must be > 0, got {value!r}")
+        if self.drag_kd_n_s_m < 0.0 or self.attitude_tau_s < 0.0 or self.max_thrust_n <= 0.0:
+            raise ValueError("EavParams: drag, attitude_tau_s must be >= 0 and max_thrust_n > 0")
+
+    @property
+    def hover_thrust_n(self) -> float:
+        return self.mass_kg * self.gravity_m_s2
+
+    @property
+    def rate_hz(self) -> float:
+        return 1.0 / self.dt_s
+
+    @classmethod
+    def paper(cls, dt_s: float = 1.0 / 30.0) -> EavParams:
+        """The reference implementation's numbers (m = 0.468 kg, k_d = 0.15, g = 9.81, Δt = 1/30)."""
+        return cls(mass_kg=0.468, drag_kd_n_s_m=0.15, gravity_m_s2=9.81, dt_s=dt_s)
+
+    def with_rate(self, rate_hz: float) -> EavParams:
+        return replace(self, dt_s=1.0 / rate_hz)

@@ -1,0 +1,1 @@
+"""Perception, trials and scoring (landing benchmark): planned."""
