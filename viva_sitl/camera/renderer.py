@@ -1,0 +1,264 @@
+"""The VAC renderer: footage frame (as a pyramid) + full pose -> anti-aliased camera image, coverage, homography.
+
+Anti-aliasing: the pyramid level is chosen from the footprint, i.e. the number of footage pixels one VAC pixel spans
+at the image centre (the longer axis of the local Jacobian of the VAC -> footage map, as in mip-mapping). The frame is
+then warped from that level with bilinear interpolation, so each VAC pixel reads about one source pixel and the cost
+per frame depends on the output size, not on the footage resolution. The pyramid is built once per footage frame by
+the caller (`LazyPyramid` builds only the levels actually used).
+
+Pixels whose ray misses the footage (outside it, or at/above the horizon) get `CameraParams.fill_bgr`; the fraction of
+pixels that see footage is `RenderResult.coverage` (exact, from the clipped footprint polygon).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from viva_sitl.camera.effects import add_sensor_noise, apply_motion_blur, distortion_source_map
+from viva_sitl.camera.params import CameraParams
+from viva_sitl.camera.projection import (
+    _vec3,
+    camera_extrinsics,
+    camera_intrinsics,
+    clip_convex_polygon,
+    footage_to_image_homography,
+    ground_to_image_homography,
+    image_corners_px,
+    pixel_to_ground,
+    polygon_area,
+)
+from viva_sitl.camera.pyramid import U8, LazyPyramid, check_image, level_from_source
+from viva_sitl.footage.geometry import FootageGeometry
+
+F64 = NDArray[np.float64]
+PyramidLike = LazyPyramid | Sequence[U8] | U8
+
+_W_EPS = 1e-9  # homogeneous w at or below this is treated as a ray at/above the horizon
+
+
+@dataclass(frozen=True)
+class RenderResult:
+    image_bgr: U8  # (height, width, 3) uint8 BGR
+    coverage: float  # fraction (0..1) of VAC pixels that see footage; the rest is fill_bgr
+    homography: F64  # 3x3: FootageGeometry pixels -> VAC px (ideal pinhole, before lens distortion)
+    pyramid_level: int  # pyramid level warped from (0 = full resolution)
+    footage_px_per_vac_px: float  # footprint scale at the image centre that chose the level (nan: none)
+    cam_rot_body: F64  # R^b_v actually used (differs from the mount's for a gimbal at non-level attitude)
+
+
+def _level_image(pyramid: PyramidLike, level: int) -> tuple[U8, int]:
+    if isinstance(pyramid, LazyPyramid):
+        level = min(level, pyramid.max_level)
+        return pyramid.level(level), level
+    if isinstance(pyramid, np.ndarray):
+        if level > 0:
+            pyr = LazyPyramid(pyramid)  # not cached: pass a LazyPyramid to reuse levels between frames
+            level = min(level, pyr.max_level)
+            return pyr.level(level), level
+        return pyramid, 0
+    level = min(level, len(pyramid) - 1)
+    return pyramid[level], level
+
+
+def _level0_image(pyramid: PyramidLike) -> U8:
+    if isinstance(pyramid, LazyPyramid):
+        return pyramid.level(0)
+    if isinstance(pyramid, np.ndarray):
+        return pyramid
+    if len(pyramid) == 0:
+        raise ValueError("empty pyramid")
+    return pyramid[0]
+
+
+def _footprint_scale(m: F64, u: float, v: float) -> float:
+    """Longer axis of the Jacobian of p -> (m p)_xy / (m p)_z at (u, v): source pixels per output pixel."""
+    q = m @ np.array([u, v, 1.0])
+    if q[2] <= _W_EPS:
+        return math.nan
+    j = (m[:2, :2] * q[2] - np.outer(q[:2], m[2, :2])) / (q[2] * q[2])
+    return float(max(np.hypot(j[0, 0], j[1, 0]), np.hypot(j[0, 1], j[1, 1])))
+
+
+class Renderer:
+    """Renders the VAC view of one footage geometry. Stateless per frame (safe to call from one render thread)."""
+
+    def __init__(self, params: CameraParams, geometry: FootageGeometry) -> None:
+        self.params = params
+        self.geometry = geometry
+        self.k = camera_intrinsics(params)
+        self._fill = tuple(float(c) for c in params.fill_bgr)
+        self._fill_u8 = np.array(params.fill_bgr, dtype=np.uint8)
+        # ideal-pinhole pixel seen by each distorted pixel (precomputed once; None without distortion)
+        self._und_map = distortion_source_map(params, self.k) if params.has_distortion else None
+
+    def _image_scale(self, image: U8) -> F64:
+        """Geometry pixels -> pixels of the given level-0 image (the frame may be decoded at another resolution)."""
+        gw, gh = self.geometry.width_px, self.geometry.height_px
+        iw, ih = image.shape[1], image.shape[0]
+        if (iw, ih) == (gw, gh):
+            return np.eye(3)
+        if abs((iw / gw) / (ih / gh) - 1.0) > 0.01:
+            raise ValueError(f"footage frame {iw}x{ih} does not have the aspect of its geometry {gw}x{gh}")
+        return level_from_source(gw, gh, iw, ih)  # pixel edges stay aligned
+
+    def choose_level(self, vac_to_src: F64, max_level: int) -> tuple[int, float]:
+        """Pyramid level for the VAC -> level-0 source map: floor(log2(scale at the centre) + lod_bias), clamped.
+
+        When the centre ray misses the ground (steep tilt), the smallest scale over a 5x5 grid of valid pixels.
+        """
+        p = self.params
+        cu, cv = (p.width_px - 1) / 2.0, (p.height_px - 1) / 2.0
+        rho = _footprint_scale(vac_to_src, cu, cv)
+        if not math.isfinite(rho):
+            scales = [
+                _footprint_scale(vac_to_src, u, v)
+                for u in np.linspace(0, p.width_px - 1, 5)
+                for v in np.linspace(0, p.height_px - 1, 5)
+            ]
+            finite = [s for s in scales if math.isfinite(s)]
+            rho = min(finite) if finite else math.nan
+        if not p.antialias or not math.isfinite(rho) or rho <= 0.0:
+            return 0, rho
+        level = math.floor(math.log2(rho) + p.lod_bias)
+        return max(0, min(level, max_level)), rho
+
+    def coverage(self, vac_to_src: F64, src_w: int, src_h: int) -> float:
+        """Exact fraction of the (undistorted) VAC image whose rays hit the footage rectangle in front of the camera.
+
+        With w = m2 . p > 0, `lo <= (mi . p) / w <= hi` is linear in p, so the region is the image rectangle clipped
+        by five half-planes.
+        """
+        m = vac_to_src
+        halfplanes = [
+            m[2] - np.array([0.0, 0.0, _W_EPS]),
+            m[0] + 0.5 * m[2],  # u >= -0.5
+            (src_w - 0.5) * m[2] - m[0],  # u <= w - 0.5
+            m[1] + 0.5 * m[2],
+            (src_h - 0.5) * m[2] - m[1],
+        ]
+        poly = clip_convex_polygon(image_corners_px(self.params), halfplanes)
+        return min(1.0, polygon_area(poly) / float(self.params.width_px * self.params.height_px))
+
+    def render(
+        self,
+        pyramid: PyramidLike,
+        pos_ned_m: ArrayLike,
+        att_rpy_rad: ArrayLike,
+        vel_ned_m_s: ArrayLike | None = None,
+        rng: np.random.Generator | None = None,
+    ) -> RenderResult:
+        """Render the VAC at the vehicle pose. `pyramid`: a LazyPyramid (preferred), a list of levels or an image."""
+        p = self.params
+        pos = _vec3("pos_ned_m", pos_ned_m)
+        att = _vec3("att_rpy_rad", att_rpy_rad)
+        vel = None if vel_ned_m_s is None else _vec3("vel_ned_m_s", vel_ned_m_s)
+        if p.noise_std > 0.0 and rng is None:
+            raise ValueError("camera noise_std > 0 needs a numpy Generator (rng)")
+        src0 = _level0_image(pyramid)
+        check_image(src0)
+        geom_to_src = self._image_scale(src0)
+        h_f2i = footage_to_image_homography(self.geometry, pos, att, p)  # geometry px -> VAC
+        h_src2i = h_f2i @ np.linalg.inv(geom_to_src)
+        vac_to_src = np.linalg.inv(h_src2i)
+        vac_to_src /= np.max(np.abs(vac_to_src))
+        src_w, src_h = int(src0.shape[1]), int(src0.shape[0])
+        cam_rot_body, _ = camera_extrinsics(p, att)
+        shape = (p.height_px, p.width_px) + src0.shape[2:]
+
+        # exact polygon coverage for the pinhole; with lens distortion it is counted per pixel below
+        coverage = self.coverage(vac_to_src, src_w, src_h) if self._und_map is None else -1.0
+        if coverage == 0.0:
+            image = np.empty(shape, np.uint8)
+            image[...] = self._fill_u8[: image.shape[2]] if image.ndim == 3 else self._fill_u8[0]
+            return RenderResult(image, 0.0, h_f2i, 0, math.nan, cam_rot_body)
+
+        max_level = self._max_level(pyramid)
+        level, rho = self.choose_level(vac_to_src, max_level)
+        src, level = _level_image(pyramid, level)
+        lw, lh = int(src.shape[1]), int(src.shape[0])
+        vac_to_level = level_from_source(src_w, src_h, lw, lh) @ vac_to_src
+
+        if self._und_map is None:
+            warped = cv2.warpPerspective(
+                src, vac_to_level, (p.width_px, p.height_px),
+                flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
+                borderMode=cv2.BORDER_CONSTANT, borderValue=self._fill,
+            )  # fmt: skip
+            image = np.asarray(warped, dtype=np.uint8)
+            self._fill_behind(image, vac_to_src)
+        else:
+            image, coverage = self._remap_distorted(src, vac_to_level)
+
+        if p.motion_blur and vel is not None and p.exposure_s > 0.0:
+            image = apply_motion_blur(image, self._blur_shift_px(pos, att, vel))
+        if p.noise_std > 0.0 and rng is not None:
+            image = add_sensor_noise(image, p.noise_std, rng)
+        return RenderResult(np.asarray(image, dtype=np.uint8), coverage, h_f2i, level, rho, cam_rot_body)
+
+    @staticmethod
+    def _max_level(pyramid: PyramidLike) -> int:
+        if isinstance(pyramid, LazyPyramid):
+            return pyramid.max_level
+        if isinstance(pyramid, np.ndarray):
+            return LazyPyramid(pyramid).max_level
+        return len(pyramid) - 1
+
+    def _fill_behind(self, image: U8, vac_to_src: F64) -> None:
+        """Paint the pixels whose ray is at or above the horizon (homogeneous w <= 0), which the warp would mirror."""
+        poly = clip_convex_polygon(image_corners_px(self.params), [-vac_to_src[2]])
+        if polygon_area(poly) <= 0.0:
+            return
+        pts = np.round(poly * 16.0).astype(np.int32)  # 4 fractional bits
+        cv2.fillConvexPoly(image, pts, self._fill, lineType=cv2.LINE_8, shift=4)
+
+    def _remap_distorted(self, src: U8, vac_to_level: F64) -> tuple[U8, float]:
+        assert self._und_map is not None
+        m = vac_to_level
+        x, y = self._und_map[..., 0], self._und_map[..., 1]
+        w = m[2, 0] * x + m[2, 1] * y + m[2, 2]
+        valid = w > _W_EPS * np.max(np.abs(m[2]))
+        w_safe = np.where(valid, w, 1.0)
+        mx = (m[0, 0] * x + m[0, 1] * y + m[0, 2]) / w_safe
+        my = (m[1, 0] * x + m[1, 1] * y + m[1, 2]) / w_safe
+        mx[~valid] = -1e6
+        my[~valid] = -1e6
+        lw, lh = src.shape[1], src.shape[0]
+        inside = valid & (mx >= -0.5) & (mx <= lw - 0.5) & (my >= -0.5) & (my <= lh - 0.5)
+        coverage = float(np.count_nonzero(inside)) / inside.size
+        image = cv2.remap(
+            src, mx.astype(np.float32), my.astype(np.float32), cv2.INTER_LINEAR,
+            borderMode=cv2.BORDER_CONSTANT, borderValue=self._fill,
+        )  # fmt: skip
+        return np.asarray(image, dtype=np.uint8), coverage
+
+    def _blur_shift_px(self, pos: F64, att: F64, vel: F64) -> tuple[float, float]:
+        """Image displacement of the ground point at the image centre over the exposure (translation only)."""
+        p = self.params
+        centre = np.array([[(p.width_px - 1) / 2.0, (p.height_px - 1) / 2.0]])
+        g = pixel_to_ground(centre, pos, att, p)[0]
+        if not np.all(np.isfinite(g)):
+            return (0.0, 0.0)
+        half = 0.5 * p.exposure_s * vel
+        gh = np.array([g[0], g[1], 1.0])
+        a = ground_to_image_homography(pos - half, att, p) @ gh
+        b = ground_to_image_homography(pos + half, att, p) @ gh
+        if a[2] <= 0.0 or b[2] <= 0.0:
+            return (0.0, 0.0)
+        return (float(b[0] / b[2] - a[0] / a[2]), float(b[1] / b[2] - a[1] / a[2]))
+
+
+def render_view(
+    source_image_bgr: U8,
+    geometry: FootageGeometry,
+    params: CameraParams,
+    pos_ned_m: ArrayLike,
+    att_rpy_rad: ArrayLike,
+) -> U8:
+    """One VAC frame of a footage image at a pose (builds a throw-away pyramid; for the CLI and quick looks)."""
+    return Renderer(params, geometry).render(LazyPyramid(source_image_bgr), pos_ned_m, att_rpy_rad).image_bgr
