@@ -1,0 +1,3 @@
+from viva_sitl.cli import main
+
+raise SystemExit(main())

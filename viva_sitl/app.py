@@ -1,0 +1,226 @@
+"""Wiring: the only place that connects footage, dynamics, camera, autopilot, MAVLink and video.
+
+asyncio loop (one thread):  physics task (paced by the clock) -> Autopilot.update -> EAV step
+                            MavlinkEndpoint tasks (UDP I/O, telemetry, commands)
+render thread:              at the stream fps, snapshot the (frozen) state -> VAC render -> VideoPipeline.submit
+video worker threads:       encode + send (bounded queues; late frames dropped and counted)
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import contextlib
+import dataclasses
+import json
+import logging
+import signal
+import sys
+import time
+from pathlib import Path
+
+import cv2
+
+from viva_sitl.autopilot import Autopilot, ParamStore
+from viva_sitl.clock import RealTimePacer
+from viva_sitl.config import SimConfig
+from viva_sitl.dynamics import EavState
+from viva_sitl.frame import RenderedFrame
+from viva_sitl.geo import GeoOrigin
+from viva_sitl.mavlink import CaptureResult, MavlinkEndpoint
+from viva_sitl.sim import Simulator
+from viva_sitl.video import FrameScheduler, VideoPipeline
+
+log = logging.getLogger("viva_sitl.app")
+
+
+class SitlApp:
+    """One simulated vehicle: satisfies viva_sitl.mavlink's VehicleLink protocol."""
+
+    def __init__(self, config: SimConfig, *, video: bool = True, run_dir: Path | None = None) -> None:
+        self.config = config
+        self.sim = Simulator(config)
+        self.params = ParamStore()
+        for name, value in config.params:
+            self.params.set(name, value)
+        self.autopilot = Autopilot(self.params, config.physics, inside=self.sim.inside_footage)
+        self.boot_wall_time_s = time.time()
+        self.state_wall_time_s = self.boot_wall_time_s
+        self.run_dir = run_dir or Path("runs") / time.strftime("%Y%m%d-%H%M%S")
+        self.pacer = RealTimePacer(dt_s=self.sim.params.dt_s, speed=config.speed)
+        self.video: VideoPipeline | None = None
+        self.scheduler: FrameScheduler | None = None
+        self.last_frame: RenderedFrame | None = None
+        if video:
+            self.run_dir.mkdir(parents=True, exist_ok=True)
+            vcfg = dataclasses.replace(config.video, sdp_dir=str(self.run_dir))
+            self.video = VideoPipeline(vcfg, config.camera.width_px, config.camera.height_px)
+            self.scheduler = FrameScheduler(
+                self._render_tick, self.video.submit, config.video.fps, name="viva-render"
+            )
+        self.endpoint = MavlinkEndpoint(self, config.mavlink)
+        self._stopping = asyncio.Event()
+        self._physics_task: asyncio.Task[None] | None = None
+
+    # --- VehicleLink ----------------------------------------------------------------------
+    @property
+    def state(self) -> EavState:
+        return self.sim.state
+
+    @property
+    def time_s(self) -> float:
+        return self.sim.state.time_s
+
+    @property
+    def geo(self) -> GeoOrigin:
+        return self.sim.geo
+
+    @property
+    def camera(self) -> SitlApp | None:
+        return self if self.scheduler is not None else None
+
+    def _render_tick(self, tick: int) -> RenderedFrame:
+        """Render thread: the VAC at the latest (frozen) state; wall time = when that state was produced."""
+        frame = self.sim.render(self.sim.state, wall_time_s=self.state_wall_time_s)
+        self.last_frame = frame
+        return frame
+
+    # --- CameraLink (MAVLink camera protocol) ------------------------------------------------
+    def capture_image(self, seq: int) -> CaptureResult:
+        """Save the latest VAC frame and its pose (PNG + JSON sidecar) under run_dir/captures."""
+        frame = self.last_frame
+        if frame is None:
+            return CaptureResult(ok=False, path="", meta=None)
+        out = self.run_dir / "captures"
+        out.mkdir(parents=True, exist_ok=True)
+        path = out / f"img_{seq:05d}.png"
+        ok = bool(cv2.imwrite(str(path), frame.image_bgr))
+        if ok:
+            path.with_suffix(".json").write_text(json.dumps(frame.meta.to_dict(), indent=1))
+        return CaptureResult(ok=ok, path=str(path.resolve()), meta=frame.meta)
+
+    # --- loops ---------------------------------------------------------------------------
+    async def _physics_loop(self) -> None:
+        sim, ap, pacer = self.sim, self.autopilot, self.pacer
+        pacer.start()
+        while True:
+            n = pacer.steps_due()
+            for _ in range(n):
+                cmd = ap.update(sim.state.time_s, sim.state)
+                sim.step(cmd)
+            if n:
+                pacer.mark_done(n)
+                self.state_wall_time_s = time.time()
+                new_params = ap.eav_params()
+                if new_params != sim.params:
+                    sim.set_params(new_params)
+                    pacer.dt_s = new_params.dt_s
+            await asyncio.sleep(max(0.0005, pacer.wall_until_next_step_s()))
+
+    def stop(self) -> None:
+        self._stopping.set()
+
+    async def run(self, duration_s: float | None = None, ready: bool = True) -> None:
+        if self.scheduler is not None:
+            # First render decodes/generates the footage frame and builds caches: do it before we are "ready".
+            await asyncio.get_running_loop().run_in_executor(None, self._render_tick, -1)
+        await self.endpoint.start()
+        if self.video is not None and self.scheduler is not None:
+            self.video.start()
+            self.scheduler.start()
+        self._physics_task = asyncio.create_task(self._physics_loop(), name="viva-physics")
+        if ready:
+            self._print_ready()
+        try:
+            if duration_s is None:
+                await self._stopping.wait()
+            else:
+                with contextlib.suppress(TimeoutError):
+                    await asyncio.wait_for(self._stopping.wait(), duration_s)
+        finally:
+            self._physics_task.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await self._physics_task
+            await self.endpoint.stop()
+            if self.scheduler is not None:
+                self.scheduler.stop()
+            if self.video is not None:
+                self.video.stop()
+            self.sim.close()
+            self._print_stats()
+
+    def _print_ready(self) -> None:
+        m = self.config.mavlink
+        parts = [
+            f"viva-sitl ready: sysid {m.system_id} footage {self.sim.footage.metadata.name}",
+            f"mavlink api udp {m.listen_host}:{m.api_local_port_resolved} -> {m.api_remote_host}:{m.api_remote_port_resolved}",
+            f"gcs udp {m.listen_host}:{m.gcs_local_port_resolved} -> {m.gcs_remote_host}:{m.gcs_remote_port}",
+        ]
+        if self.video is not None:
+            for kind, sdp in self.video.sdp_paths.items():
+                parts.append(f"{kind} rtp sdp {sdp.resolve()}")
+            if self.video.frame_socket_endpoint:
+                parts.append(f"frames {self.video.frame_socket_endpoint}")
+        print(" | ".join(parts), flush=True)
+
+    def _print_stats(self) -> None:
+        stats: dict[str, object] = {
+            "sim_time_s": round(self.time_s, 3),
+            "skipped_physics_steps": self.pacer.skipped_steps,
+        }
+        if self.scheduler is not None:
+            stats["render"] = self.scheduler.stats()
+        if self.video is not None:
+            stats["video"] = self.video.stats()
+        stats["mavlink"] = self.endpoint.stats
+        print(f"viva-sitl stopped: {json.dumps(stats, default=str)}", file=sys.stderr, flush=True)
+
+
+def config_from_args(args: argparse.Namespace) -> SimConfig:
+    cfg = SimConfig.load(args.config)
+    sim_updates: dict[str, object] = {}
+    if args.footage:
+        sim_updates["footage"] = args.footage
+    if args.speed is not None:
+        sim_updates["speed"] = args.speed
+    if args.seed is not None:
+        sim_updates["seed"] = args.seed
+    mav = cfg.mavlink
+    if args.instance is not None:
+        mav = dataclasses.replace(mav, instance=args.instance)
+    mav_updates = {
+        "listen_host": args.listen,
+        "api_remote_port": args.api_port,
+        "gcs_remote_port": args.gcs_port,
+        "api_local_port": args.api_local_port,
+        "gcs_local_port": args.gcs_local_port,
+    }
+    mav = dataclasses.replace(mav, **{k: v for k, v in mav_updates.items() if v is not None})
+    video = cfg.video.with_instance(mav.instance)
+    video_updates = {
+        "h264_port": args.video_port,
+        "mjpeg_port": args.mjpeg_port,
+        "frame_socket_endpoint": args.frame_socket,
+        "record_path": args.record,
+    }
+    video = dataclasses.replace(video, **{k: v for k, v in video_updates.items() if v is not None})
+    if args.mjpeg_port is not None:
+        video = dataclasses.replace(video, mjpeg_rtp=True)
+    return dataclasses.replace(cfg, mavlink=mav, video=video, **sim_updates)  # type: ignore[arg-type]
+
+
+def run_from_args(args: argparse.Namespace) -> int:
+    cfg = config_from_args(args)
+    app = SitlApp(cfg, video=not args.no_video, run_dir=Path(args.run_dir) if args.run_dir else None)
+
+    async def main() -> None:
+        loop = asyncio.get_running_loop()
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            loop.add_signal_handler(sig, app.stop)
+        await app.run(duration_s=args.duration)
+
+    asyncio.run(main())
+    return 0
+
+
+__all__ = ["SitlApp", "config_from_args", "run_from_args"]

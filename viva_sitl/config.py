@@ -1,0 +1,174 @@
+"""Configuration: one TOML file, one table per part, each table built into that part's frozen dataclass.
+
+    [sim]      footage, seed, speed, initial pose, home        -> SimConfig's own fields
+    [physics]  EavParams fields (rate_hz accepted for dt_s)    -> viva_sitl.dynamics.EavParams
+    [physics.wind]                                             -> viva_sitl.dynamics.WindParams
+    [camera]   CameraParams fields                             -> viva_sitl.camera.CameraParams
+    [mavlink]  MavlinkConfig fields                            -> viva_sitl.mavlink.MavlinkConfig
+    [video]    VideoConfig fields                              -> viva_sitl.video.VideoConfig
+    [params]   PX4 parameter overrides (name = value)
+
+Unknown tables or keys are errors with the exact key named: a typo never silently falls back to a default.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import enum
+import math
+import tomllib
+import types
+import typing
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, TypeVar
+
+from viva_sitl.camera import CameraParams
+from viva_sitl.dynamics import EavParams
+from viva_sitl.geo import GeoOrigin
+from viva_sitl.mavlink import MavlinkConfig
+from viva_sitl.video import VideoConfig
+
+T = TypeVar("T")
+
+
+class ConfigError(ValueError):
+    """A configuration file or value that cannot be used; the message names the file and key."""
+
+
+def _coerce(value: Any, annotation: Any, where: str) -> Any:
+    origin = typing.get_origin(annotation)
+    args = typing.get_args(annotation)
+    if annotation is Any:
+        return value
+    if origin in (typing.Union, types.UnionType):
+        if value is None and type(None) in args:
+            return None
+        errors = []
+        for arg in args:
+            if arg is type(None):
+                continue
+            try:
+                return _coerce(value, arg, where)
+            except ConfigError as exc:
+                errors.append(str(exc))
+        raise ConfigError(errors[0] if errors else f"{where}: bad value {value!r}")
+    if origin is tuple:
+        if not isinstance(value, list | tuple):
+            raise ConfigError(f"{where}: expected a list, got {value!r}")
+        if len(args) == 2 and args[1] is Ellipsis:
+            return tuple(_coerce(v, args[0], where) for v in value)
+        if len(value) != len(args):
+            raise ConfigError(f"{where}: expected {len(args)} values, got {len(value)}")
+        return tuple(_coerce(v, a, where) for v, a in zip(value, args, strict=True))
+    if isinstance(annotation, type) and dataclasses.is_dataclass(annotation):
+        if not isinstance(value, dict):
+            raise ConfigError(f"{where}: expected a table, got {value!r}")
+        return build(annotation, value, where)
+    if isinstance(annotation, type) and issubclass(annotation, enum.Enum):
+        try:
+            if isinstance(value, str):
+                return annotation[value.upper()]
+            return annotation(value)
+        except (KeyError, ValueError):
+            names = ", ".join(m.name.lower() for m in annotation)
+            raise ConfigError(f"{where}: {value!r} is not one of {names}") from None
+    if annotation is bool:
+        if not isinstance(value, bool):
+            raise ConfigError(f"{where}: expected true/false, got {value!r}")
+        return value
+    if annotation is float:
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            raise ConfigError(f"{where}: expected a number, got {value!r}")
+        if not math.isfinite(float(value)):
+            raise ConfigError(f"{where}: expected a finite number, got {value!r}")
+        return float(value)
+    if annotation is int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise ConfigError(f"{where}: expected an integer, got {value!r}")
+        return value
+    if annotation is str:
+        if not isinstance(value, str):
+            raise ConfigError(f"{where}: expected a string, got {value!r}")
+        return value
+    return value
+
+
+def build(cls: type[T], table: dict[str, Any], where: str = "") -> T:
+    """Build frozen dataclass `cls` from a TOML table, rejecting unknown keys and ill-typed values."""
+    assert dataclasses.is_dataclass(cls)
+    hints = typing.get_type_hints(cls)
+    fields = {f.name: f for f in dataclasses.fields(cls) if f.init}
+    kwargs: dict[str, Any] = {}
+    for key, value in table.items():
+        if key not in fields:
+            known = ", ".join(sorted(fields))
+            raise ConfigError(f"{where or cls.__name__}: unknown key {key!r} (known: {known})")
+        kwargs[key] = _coerce(value, hints[key], f"{where}.{key}" if where else key)
+    try:
+        return cls(**kwargs)
+    except (TypeError, ValueError) as exc:
+        raise ConfigError(f"{where or cls.__name__}: {exc}") from exc
+
+
+@dataclass(frozen=True)
+class SimConfig:
+    """Everything a run needs. Defaults: synthetic field, 250 Hz physics, 640x480 VAC, PX4 SITL ports."""
+
+    footage: str = "synthetic"  # catalog name or path
+    seed: int = 0
+    speed: float = 1.0  # sim seconds per wall second for `run`
+    initial_pos_ned_m: tuple[float, float, float] = (0.0, 0.0, 0.0)  # start on the ground at the origin
+    initial_yaw_deg: float = 0.0
+    home: GeoOrigin | None = None  # used only when the footage has no geo-reference
+    physics: EavParams = field(default_factory=EavParams)
+    camera: CameraParams = field(default_factory=CameraParams)
+    mavlink: MavlinkConfig = field(default_factory=MavlinkConfig)
+    video: VideoConfig = field(default_factory=VideoConfig)
+    params: tuple[tuple[str, float], ...] = ()  # PX4 parameter overrides
+
+    def __post_init__(self) -> None:
+        if not (self.speed > 0.0 and math.isfinite(self.speed)):
+            raise ConfigError(f"sim.speed must be a positive number, got {self.speed!r}")
+
+    @classmethod
+    def load(cls, path: str | Path | None = None) -> SimConfig:
+        """Read a TOML config (None: all defaults). Raises ConfigError with the file and key on any problem."""
+        if path is None:
+            return cls()
+        p = Path(path)
+        try:
+            data = tomllib.loads(p.read_text(encoding="utf-8"))
+        except FileNotFoundError:
+            raise ConfigError(f"config file not found: {p}") from None
+        except (OSError, UnicodeDecodeError) as exc:
+            raise ConfigError(f"cannot read config {p}: {exc}") from exc
+        except tomllib.TOMLDecodeError as exc:
+            raise ConfigError(f"{p}: not valid TOML: {exc}") from exc
+        return cls.from_dict(data, str(p))
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any], where: str = "config") -> SimConfig:
+        sections = {"physics", "camera", "mavlink", "video", "params"}
+        unknown = set(data) - sections - {"sim"}
+        if unknown:
+            raise ConfigError(
+                f"{where}: unknown table(s) {sorted(unknown)} (known: sim, {', '.join(sorted(sections))})"
+            )
+        sim = dict(data.get("sim", {}))
+        misplaced = sections & set(sim)
+        if misplaced:
+            raise ConfigError(f"{where}[sim]: {sorted(misplaced)} must be tables of their own")
+        merged: dict[str, Any] = {**sim, **{k: data[k] for k in sections - {"params"} if k in data}}
+        physics = dict(merged.get("physics", {}))
+        if "rate_hz" in physics:
+            rate = physics.pop("rate_hz")
+            if isinstance(rate, bool) or not isinstance(rate, int | float) or not rate > 0:
+                raise ConfigError(f"{where}[physics].rate_hz: expected a positive number, got {rate!r}")
+            physics["dt_s"] = 1.0 / float(rate)
+            merged["physics"] = physics
+        params = data.get("params", {})
+        if not isinstance(params, dict):
+            raise ConfigError(f"{where}[params]: expected a table of NAME = number")
+        merged["params"] = [[str(k), v] for k, v in params.items()]
+        return build(cls, merged, where)
