@@ -91,3 +91,67 @@ class FootageGeometry:
         u, v = self.ned_to_px(north_m, east_m)
         m = margin_m / self.gsd_m_per_px
         return bool(m <= u <= self.width_px - 1 - m and m <= v <= self.height_px - 1 - m)
+
+    # --- added by the footage helper (additive): geo-reference from the frame's 4 corner coordinates -----------------
+    @classmethod
+    def from_corners(
+        cls,
+        width_px: int,
+        height_px: int,
+        corners_lonlat: tuple[tuple[float, float], ...] | list[tuple[float, float]],
+        *,
+        recording_altitude_m: float | None = None,
+        hfov_deg: float | None = None,
+        ground_alt_amsl_m: float = 0.0,
+    ) -> FootageGeometry:
+        """Geometry from the (lon, lat) of the frame corners in the order top-left, top-right, bottom-right, bottom-left.
+
+        A least-squares similarity (scale = GSD, rotation = heading, translation = centre) from the pixel-area corners
+        to local ground metres; the centre pixel's WGS84 becomes `geo_origin`. The recording altitude is given, or
+        derived from a recording horizontal FoV: z = ground width / (2 tan(hfov/2)).
+        """
+        gsd, heading_deg, origin, _ = corners_fit(width_px, height_px, corners_lonlat, ground_alt_amsl_m)
+        if recording_altitude_m is None:
+            if hfov_deg is None or not 0.0 < hfov_deg < 180.0:
+                raise ValueError(
+                    "from_corners needs recording_altitude_m or a recording hfov_deg in (0, 180)"
+                )
+            recording_altitude_m = width_px * gsd / (2.0 * math.tan(math.radians(hfov_deg) / 2.0))
+        return cls(width_px, height_px, gsd, recording_altitude_m, heading_deg, origin)
+
+
+def corners_fit(
+    width_px: int,
+    height_px: int,
+    corners_lonlat: tuple[tuple[float, float], ...] | list[tuple[float, float]],
+    ground_alt_amsl_m: float = 0.0,
+) -> tuple[float, float, GeoOrigin, float]:
+    """(gsd_m_per_px, heading_deg in [0, 360), geo origin of the frame centre, worst corner residual in m).
+
+    Complex-number similarity fit: ground (n + i e) = a * image (fwd + i right) + b with a = gsd * exp(i heading);
+    this is the same convention as `ground_to_px` (footage up = bearing `heading_deg`, footage right = heading + 90).
+    """
+    if len(corners_lonlat) != 4:
+        raise ValueError(
+            f"need 4 corners (top-left, top-right, bottom-right, bottom-left), got {len(corners_lonlat)}"
+        )
+    lons = [float(c[0]) for c in corners_lonlat]
+    lats = [float(c[1]) for c in corners_lonlat]
+    if not all(-180.0 <= lo <= 180.0 for lo in lons) or not all(-90.0 <= la <= 90.0 for la in lats):
+        raise ValueError(f"corner coordinates must be (lon, lat) in degrees, got {list(corners_lonlat)!r}")
+    mean = GeoOrigin(sum(lats) / 4.0, sum(lons) / 4.0, ground_alt_amsl_m)
+    ned = [mean.global_to_ned(la, lo, ground_alt_amsl_m) for lo, la in zip(lons, lats, strict=True)]
+    z_ground = np.array([n + 1j * e for n, e, _ in ned])
+    w, h = float(width_px), float(height_px)
+    # corners of the pixel area, relative to the centre: (fwd, right) = (-(v - h/2), u - w/2)
+    z_image = np.array([h / 2 + 1j * -w / 2, h / 2 + 1j * w / 2, -h / 2 + 1j * w / 2, -h / 2 + 1j * -w / 2])
+    zg_c = z_ground - z_ground.mean()
+    a = complex(np.sum(np.conj(z_image) * zg_c) / np.sum(np.abs(z_image) ** 2))
+    b = complex(z_ground.mean())
+    residual = float(np.max(np.abs(a * z_image + b - z_ground)))
+    gsd = abs(a)
+    if not gsd > 0.0:
+        raise ValueError("degenerate corners: all four at the same place")
+    heading_deg = math.degrees(math.atan2(a.imag, a.real)) % 360.0
+    lat, lon, _ = mean.ned_to_global(b.real, b.imag, 0.0)
+    return gsd, heading_deg, GeoOrigin(lat, lon, ground_alt_amsl_m), residual

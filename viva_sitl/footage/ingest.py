@@ -1,0 +1,192 @@
+"""Ingest: transcode heavy footage (4K/8K, long GOPs, high bit rates) into a fast-decoding, multi-resolution cache.
+
+Output folder (default `<cache>/ingest/<name>/`):
+    full.mp4      H.264 at full resolution, x264 `ultrafast` + `tune=fastdecode` (no CABAC, no deblocking: cheapest
+                  decode), a keyframe every second (cheap seeks), no B-frames, same frame count and rate
+    half.mp4      the same at half resolution (and quarter.mp4 with `levels=3`), read by `VideoSource.frame(i, level)`
+    footage.toml  the source's metadata with the geometry written out explicitly (GSD, altitude, heading, origin),
+                  so `open_footage(folder)` or `open_footage("<name>")` (name lookup in the cache) use the copy.
+The folder is built under a temporary name and renamed when complete: an interrupted ingest leaves no cache entry.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import shutil
+import sys
+from fractions import Fraction
+from pathlib import Path
+from typing import Any, TextIO
+
+import av
+from tqdm import tqdm
+
+from viva_sitl.footage.errors import FootageError
+from viva_sitl.footage.geometry import FootageGeometry
+from viva_sitl.footage.loader import (
+    INGEST_METADATA,
+    INGEST_SUBDIR,
+    geometry_for,
+    resolve_metadata,
+    with_srt_sidecar,
+)
+from viva_sitl.footage.metadata import FootageKind, FootageMetadata
+from viva_sitl.footage.paths import default_cache_dir
+from viva_sitl.footage.srt import find_srt_sidecar
+
+LEVEL_FILES = ("full.mp4", "half.mp4", "quarter.mp4")
+
+
+def _toml_value(v: Any) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, int | float):
+        return repr(float(v)) if isinstance(v, float) else str(v)
+    if isinstance(v, list | tuple):
+        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
+    return json.dumps(str(v))  # a JSON string is a valid TOML basic string
+
+
+def _even(x: float) -> int:
+    return max(2, int(round(x / 2.0)) * 2)
+
+
+def ingest(
+    spec: str | Path,
+    *,
+    out_dir: Path | None = None,
+    cache_dir: Path | None = None,
+    config_dir: Path | None = None,
+    shared_dir: Path | None = None,
+    levels: int = 2,
+    crf: int = 18,
+    name: str | None = None,
+    progress_file: TextIO | None = None,
+    show_progress: bool = True,
+    max_frames: int | None = None,
+) -> Path:
+    """Transcode a video footage into the ingest cache; returns the folder (holding footage.toml)."""
+    if not 1 <= levels <= len(LEVEL_FILES):
+        raise FootageError(f"levels must be 1..{len(LEVEL_FILES)}, got {levels}")
+    meta = resolve_metadata(spec, shared_dir=shared_dir, config_dir=config_dir, cache_dir=cache_dir)
+    if meta.kind is not FootageKind.VIDEO:
+        raise FootageError(f"ingest takes videos; {meta.name!r} is a {meta.kind.value}")
+    src_path = Path(meta.path)
+    entry = name or f"{meta.name}-ingest"
+    if not entry or "/" in entry or entry.startswith("."):
+        raise FootageError(f"bad ingest name {entry!r}")
+    dest = out_dir if out_dir is not None else (cache_dir or default_cache_dir()) / INGEST_SUBDIR / entry
+    tmp = dest.with_name(dest.name + ".tmp-ingest")
+    shutil.rmtree(tmp, ignore_errors=True)
+    tmp.mkdir(parents=True)
+    try:
+        try:
+            inp = av.open(str(src_path))
+        except (av.FFmpegError, OSError) as exc:
+            raise FootageError(
+                f"cannot open video {src_path}: {getattr(exc, 'strerror', None) or exc}"
+            ) from None
+        with inp:
+            if not inp.streams.video:
+                raise FootageError(f"{src_path} has no video stream")
+            ist = inp.streams.video[0]
+            ist.thread_type = "AUTO"
+            rate = Fraction(ist.average_rate or ist.guessed_rate or 30)
+            w, h = ist.codec_context.width, ist.codec_context.height
+            total = int(ist.frames or 0) or None
+            if max_frames is not None:
+                total = min(total or max_frames, max_frames)
+            geometry = geometry_for(with_srt_sidecar(meta), w, h)
+            outs = []
+            for k in range(levels):
+                ow, oh = (w, h) if k == 0 else (_even(w / 2**k), _even(h / 2**k))
+                oc = av.open(str(tmp / LEVEL_FILES[k]), mode="w")
+                st = oc.add_stream("libx264", rate=rate)
+                st.width, st.height, st.pix_fmt = ow, oh, "yuv420p"
+                st.codec_context.time_base = 1 / rate
+                st.options = {
+                    "preset": "ultrafast", "tune": "fastdecode", "crf": str(crf), "g": str(max(1, round(float(rate)))),
+                    "bf": "0",
+                }  # fmt: skip
+                outs.append((oc, st, ow, oh))
+            count = 0
+            with tqdm(total=total, unit="frame", desc=f"ingest {meta.name}", file=progress_file or sys.stderr,
+                      disable=not show_progress) as bar:  # fmt: skip
+                for frame in inp.decode(ist):
+                    if max_frames is not None and count >= max_frames:
+                        break
+                    yuv = frame if frame.format.name == "yuv420p" else frame.reformat(format="yuv420p")
+                    for oc, st, ow, oh in outs:
+                        f = (
+                            yuv
+                            if (ow, oh) == (w, h)
+                            else yuv.reformat(width=ow, height=oh, interpolation="AREA")
+                        )
+                        f.pts, f.time_base = count, 1 / rate
+                        for pkt in st.encode(f):
+                            oc.mux(pkt)
+                    count += 1
+                    bar.update(1)
+            for oc, st, _, _ in outs:
+                for pkt in st.encode(None):
+                    oc.mux(pkt)
+                oc.close()
+        if count == 0:
+            raise FootageError(f"{src_path}: no frame could be decoded")
+        _write_metadata(tmp / INGEST_METADATA, meta, geometry, entry, float(rate), levels, src_path, count)
+        if dest.exists():
+            shutil.rmtree(dest)
+        tmp.rename(dest)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return dest
+
+
+def _write_metadata(
+    path: Path,
+    meta: FootageMetadata,
+    geometry: FootageGeometry,
+    name: str,
+    fps: float,
+    levels: int,
+    src: Path,
+    frames: int,
+) -> None:
+    lines = [
+        f"# written by `viva-sitl footage ingest` from {src} ({frames} frames)",
+        f"name = {_toml_value(name)}",
+        f"title = {_toml_value((meta.title or meta.name) + ' (ingest cache)')}",
+        'kind = "video"',
+        f"path = {_toml_value(LEVEL_FILES[0])}",
+        f"levels = {_toml_value(list(LEVEL_FILES[1:levels]))}",
+        f"fps = {_toml_value(meta.fps or fps)}",
+        f"gsd_m_per_px = {_toml_value(geometry.gsd_m_per_px)}",
+        f"recording_altitude_m = {_toml_value(geometry.recording_altitude_m)}",
+        f"heading_deg = {_toml_value(geometry.heading_deg)}",
+        f"ground_alt_amsl_m = {_toml_value(meta.ground_alt_amsl_m)}",
+    ]
+    if geometry.geo_origin is not None:
+        lines += [
+            f"home_lat_deg = {_toml_value(geometry.geo_origin.lat_deg)}",
+            f"home_lon_deg = {_toml_value(geometry.geo_origin.lon_deg)}",
+        ]
+    for key in ("licence", "attribution", "source_url"):
+        if getattr(meta, key):
+            lines.append(f"{key} = {_toml_value(getattr(meta, key))}")
+    lines.append(f"notes = {_toml_value(f'ingested from {src}; geometry of {meta.name!r} written out')}")
+    srt = meta.srt or (str(find_srt_sidecar(src) or ""))
+    if srt:
+        lines.append(f"srt = {_toml_value(srt)}")
+    if meta.annotations_path and meta.annotations_format is not None:
+        lines += [
+            "",
+            "[annotations]",
+            f"path = {_toml_value(meta.annotations_path)}",
+            f"format = {_toml_value(meta.annotations_format.value)}",
+            f"class_names = {_toml_value(list(meta.class_names))}",
+        ]
+    if not all(math.isfinite(v) for v in (geometry.gsd_m_per_px, geometry.recording_altitude_m)):
+        raise FootageError("ingest: non-finite geometry")
+    path.write_text("\n".join(lines) + "\n", encoding="utf-8")

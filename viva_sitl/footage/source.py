@@ -1,0 +1,359 @@
+"""Footage sources: the frame shown at simulation time t, decoded on demand.
+
+Threading: a source is meant to be used by one thread (the renderer's worker). `frame()` holds an internal lock, so
+calls from several threads are safe but serialised; `frame_index_at()`, `annotations()` and the properties are
+cheap and side-effect free. Returned frames are read-only BGR uint8 arrays owned by the source's cache: copy before
+writing into them.
+"""
+
+from __future__ import annotations
+
+import abc
+import logging
+import math
+import threading
+from fractions import Fraction
+from pathlib import Path
+from typing import Any
+
+import av
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from viva_sitl.footage.annotations import Annotation, AnnotationStore
+from viva_sitl.footage.errors import FootageError
+from viva_sitl.footage.geometry import FootageGeometry
+from viva_sitl.footage.metadata import FootageMetadata
+
+log = logging.getLogger(__name__)
+
+# Decoding forward is cheaper than seeking (seek = back to the previous keyframe, then decode forward) for short
+# jumps; beyond this many frames ahead we seek.
+SEEK_AHEAD_FRAMES = 48
+# Widest frame converted to BGR by swscale; wider ones go through OpenCV (see to_bgr).
+SWSCALE_MAX_WIDTH_PX = 4096
+
+
+def _readonly(img: NDArray[np.uint8]) -> NDArray[np.uint8]:
+    img.setflags(write=False)
+    return img
+
+
+class FootageSource(abc.ABC):
+    """A footage (video, still or synthetic field) with its ground geometry."""
+
+    geometry: FootageGeometry
+    metadata: FootageMetadata
+
+    @property
+    @abc.abstractmethod
+    def fps(self) -> float:
+        """Playback rate, frames per second of simulation time."""
+
+    @property
+    @abc.abstractmethod
+    def frame_count(self) -> int: ...
+
+    @property
+    def duration_s(self) -> float:
+        return self.frame_count / self.fps
+
+    def frame_index_at(self, t_s: float) -> int:
+        """The frame shown at simulation time t: floor(t * fps) mod frame_count (looping, deterministic)."""
+        if not math.isfinite(t_s):
+            raise ValueError(f"time must be finite, got {t_s!r}")
+        if self.frame_count <= 1:
+            return 0
+        # the 1e-9 keeps t = k / fps on frame k despite float rounding (k / fps * fps may be k - 1e-15)
+        return int(math.floor(t_s * self.fps + 1e-9)) % self.frame_count
+
+    @abc.abstractmethod
+    def frame(self, index: int) -> NDArray[np.uint8]:
+        """Frame `index` (0-based, taken modulo frame_count) as a read-only BGR uint8 array (H, W, 3)."""
+
+    def frame_at(self, t_s: float) -> NDArray[np.uint8]:
+        return self.frame(self.frame_index_at(t_s))
+
+    def annotations(self, index: int) -> list[Annotation]:
+        """Ground-truth/labelled objects in frame `index` (empty when the footage has none)."""
+        return []
+
+    def close(self) -> None:  # noqa: B027 - optional hook, nothing to release by default
+        """Release decoders and files. Idempotent."""
+
+    def __enter__(self) -> FootageSource:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def describe(self) -> dict[str, Any]:
+        """A flat summary for `viva-sitl footage info` and logs."""
+        g = self.geometry
+        out: dict[str, Any] = {
+            "name": self.metadata.name,
+            "title": self.metadata.title,
+            "kind": self.metadata.kind.value,
+            "path": self.metadata.path,
+            "size_px": f"{g.width_px}x{g.height_px}",
+            "fps": round(self.fps, 4),
+            "frame_count": self.frame_count,
+            "duration_s": round(self.duration_s, 3),
+            "gsd_m_per_px": round(g.gsd_m_per_px, 5),
+            "recording_altitude_m": round(g.recording_altitude_m, 2),
+            "recording_hfov_deg": round(g.recording_hfov_deg, 2),
+            "heading_deg": round(g.heading_deg, 2),
+            "ground_size_m": f"{g.ground_width_m:.1f} x {g.ground_height_m:.1f}",
+        }
+        if g.geo_origin is not None:
+            out["geo_origin"] = f"{g.geo_origin.lat_deg:.7f}, {g.geo_origin.lon_deg:.7f}"
+        for key in ("licence", "attribution", "annotations_path", "notes"):
+            if getattr(self.metadata, key):
+                out[key] = getattr(self.metadata, key)
+        return out
+
+
+class StillSource(FootageSource):
+    """A still image (one frame, read once with cv2.imread)."""
+
+    def __init__(
+        self, metadata: FootageMetadata, geometry: FootageGeometry, image: NDArray[np.uint8]
+    ) -> None:
+        self.metadata = metadata
+        self.geometry = geometry
+        self._image = _readonly(image)
+        self._fps = metadata.fps or 30.0
+        self._annotations = AnnotationStore(
+            metadata.annotations_path, metadata.annotations_format, geometry, metadata.class_names, still=True
+        )
+
+    @staticmethod
+    def read(path: Path) -> NDArray[np.uint8]:
+        if not path.is_file():
+            raise FootageError(f"footage not found: {path}")
+        img = cv2.imread(str(path), cv2.IMREAD_COLOR)
+        if img is None or img.size == 0:
+            raise FootageError(f"cannot read image {path} (not an image OpenCV can decode)")
+        return np.ascontiguousarray(img, dtype=np.uint8)
+
+    @property
+    def fps(self) -> float:
+        return self._fps
+
+    @property
+    def frame_count(self) -> int:
+        return 1
+
+    def frame_index_at(self, t_s: float) -> int:
+        return 0
+
+    def frame(self, index: int) -> NDArray[np.uint8]:
+        return self._image
+
+    def annotations(self, index: int) -> list[Annotation]:
+        return self._annotations.get(0)
+
+
+class _Decoder:
+    """One PyAV decoder over one file: sequential fast path, keyframe seek for backward or long jumps."""
+
+    def __init__(self, path: Path) -> None:
+        try:
+            self.container = av.open(str(path), mode="r")
+        except (av.FFmpegError, OSError) as exc:
+            raise FootageError(f"cannot open video {path}: {getattr(exc, 'strerror', None) or exc}") from None
+        try:
+            if not self.container.streams.video:
+                raise FootageError(f"{path} has no video stream")
+            self.stream = self.container.streams.video[0]
+            self.stream.thread_type = "AUTO"  # frame+slice threads: decode uses the free cores
+            rate = self.stream.average_rate or self.stream.guessed_rate or self.stream.base_rate
+            if not rate or rate <= 0:
+                raise FootageError(f"{path}: the video stream has no frame rate")
+            self.native_fps = float(rate)
+            self._rate = Fraction(rate)
+            self.time_base = self.stream.time_base or Fraction(1, 90000)
+            self.start_pts = self.stream.start_time or 0
+            self.width = int(self.stream.codec_context.width)
+            self.height = int(self.stream.codec_context.height)
+            if self.width <= 0 or self.height <= 0:
+                raise FootageError(f"{path}: the video stream has no picture size")
+            self.frame_count = self._count_frames()
+        except av.FFmpegError as exc:
+            self.container.close()
+            raise FootageError(f"cannot read video {path}: {exc}") from None
+        except BaseException:
+            self.container.close()  # nothing half-open
+            raise
+        self.path = path
+        self._iter: Any = None
+        self._last_index = -1
+        self._last: NDArray[np.uint8] | None = None
+        self._last_converted = True
+        self.seeks = 0  # statistics (tests, bench)
+        self.decoded = 0
+
+    def _count_frames(self) -> int:
+        n = int(self.stream.frames or 0)
+        if n > 0:
+            return n
+        if self.stream.duration:  # no frame count in the header (e.g. MKV): duration x rate
+            return max(1, round(float(self.stream.duration * self.time_base * self._rate)))
+        if self.container.duration:
+            return max(1, round(self.container.duration / av.time_base * self.native_fps))
+        count = sum(1 for p in self.container.demux(self.stream) if p.size > 0)  # last resort: count packets
+        self.container.seek(0, stream=self.stream)
+        return count
+
+    def _index_of(self, frame: av.VideoFrame) -> int:
+        pts = frame.pts if frame.pts is not None else frame.dts
+        if pts is None:
+            return self._last_index + 1
+        return round((pts - self.start_pts) * self.time_base * self._rate)
+
+    def _pts_of(self, index: int) -> int:
+        return int(self.start_pts + round(Fraction(index) / self._rate / self.time_base))
+
+    def _restart(self, index: int) -> None:
+        if index > 0:
+            self.container.seek(self._pts_of(index), stream=self.stream, backward=True, any_frame=False)
+        else:
+            self.container.seek(self.start_pts, stream=self.stream, backward=True, any_frame=False)
+        self.seeks += 1
+        self._iter = self.container.decode(self.stream)
+        self._last_index = -1
+
+    def _next(self) -> av.VideoFrame | None:
+        try:
+            f: av.VideoFrame = next(self._iter)
+        except StopIteration:
+            return None
+        except av.FFmpegError as exc:
+            raise FootageError(f"{self.path}: decode error after frame {self._last_index}: {exc}") from None
+        self.decoded += 1
+        return f
+
+    def get(self, index: int, convert: bool = True) -> NDArray[np.uint8]:
+        if index == self._last_index and self._last is not None and convert == self._last_converted:
+            return self._last
+        restarted = False
+        if self._iter is None or index <= self._last_index or index > self._last_index + SEEK_AHEAD_FRAMES:
+            self._restart(index)
+            restarted = True
+        frame: av.VideoFrame | None = None
+        fell_back = False
+        while True:
+            f = self._next()
+            if f is None:
+                break
+            i = self._index_of(f)
+            if i > index and frame is None and restarted and index > 0 and not fell_back:
+                # the seek landed after the target (an odd index or an open GOP): decode from the start instead
+                self._restart(0)
+                fell_back = True
+                continue
+            frame, self._last_index = f, i
+            if i >= index:
+                break
+        if frame is None:
+            if self._last is not None:
+                return self._last
+            raise FootageError(f"{self.path}: no frame could be decoded (corrupt or empty video)")
+        if self._last_index != index:
+            log.debug("%s: asked for frame %d, got %d (end of stream)", self.path, index, self._last_index)
+        raw = (
+            to_bgr(frame) if convert else np.asarray(frame.to_ndarray(), dtype=np.uint8)
+        )  # raw: planar YUV (bench)
+        self._last, self._last_converted = _readonly(raw), convert
+        return self._last
+
+    def close(self) -> None:
+        self._iter = None
+        self.container.close()
+
+
+def to_bgr(frame: av.VideoFrame) -> NDArray[np.uint8]:
+    """Decoded frame -> BGR uint8 (H, W, 3).
+
+    swscale (PyAV's `bgr24`) is fastest up to 4K (2.2 ms vs 5.0 ms through OpenCV on this 2-core machine) but
+    leaves its SIMD path above 4096 px wide (8K: 55 ms); there, I420 planes + cv2.cvtColor take 25 ms
+    (bench/results_decode.md). So: swscale up to 4096 px, OpenCV beyond.
+    """
+    if (
+        frame.width > SWSCALE_MAX_WIDTH_PX
+        and frame.format.name in ("yuv420p", "yuvj420p")
+        and frame.width % 2 == 0
+        and frame.height % 2 == 0
+    ):
+        planes = frame.to_ndarray()  # (h * 3 / 2, w) I420, strides removed
+        return np.asarray(cv2.cvtColor(planes, cv2.COLOR_YUV2BGR_I420), dtype=np.uint8)
+    return np.asarray(frame.to_ndarray(format="bgr24"), dtype=np.uint8)
+
+
+class VideoSource(FootageSource):
+    """A video file decoded with PyAV (any FFmpeg-readable codec)."""
+
+    def __init__(self, metadata: FootageMetadata, geometry_factory: Any) -> None:
+        """`geometry_factory(width_px, height_px) -> FootageGeometry` is called once the stream size is known."""
+        self.metadata = metadata
+        self._decoder = _Decoder(Path(metadata.path))
+        try:
+            self.geometry = geometry_factory(self._decoder.width, self._decoder.height)
+        except BaseException:
+            self._decoder.close()
+            raise
+        self._fps = metadata.fps or self._decoder.native_fps
+        self._levels: dict[int, _Decoder] = {}
+        self._lock = threading.Lock()
+        self._closed = False
+        self._annotations = AnnotationStore(
+            metadata.annotations_path, metadata.annotations_format, self.geometry, metadata.class_names
+        )
+
+    @property
+    def fps(self) -> float:
+        return self._fps
+
+    @property
+    def native_fps(self) -> float:
+        return self._decoder.native_fps
+
+    @property
+    def frame_count(self) -> int:
+        return self._decoder.frame_count
+
+    @property
+    def decoder_stats(self) -> dict[str, int]:
+        return {"seeks": self._decoder.seeks, "decoded": self._decoder.decoded}
+
+    @property
+    def level_count(self) -> int:
+        """1 + the number of reduced-resolution copies (from `viva-sitl footage ingest`)."""
+        return 1 + len(self.metadata.levels)
+
+    def frame(self, index: int, level: int = 0) -> NDArray[np.uint8]:
+        """Frame `index`; `level` k > 0 reads the ingest cache's 1/2^k resolution copy (when it has one)."""
+        index = int(index) % self.frame_count
+        with self._lock:
+            if self._closed:
+                raise FootageError(f"footage {self.metadata.name!r} is closed")
+            if level <= 0 or level > len(self.metadata.levels):
+                return self._decoder.get(index)
+            dec = self._levels.get(level)
+            if dec is None:
+                dec = self._levels[level] = _Decoder(Path(self.metadata.levels[level - 1]))
+            return dec.get(index)
+
+    def annotations(self, index: int) -> list[Annotation]:
+        return self._annotations.get(int(index) % self.frame_count)
+
+    def close(self) -> None:
+        with self._lock:
+            if self._closed:
+                return
+            self._closed = True
+            self._decoder.close()
+            for dec in self._levels.values():
+                dec.close()
+            self._levels.clear()
