@@ -27,7 +27,7 @@ from viva_sitl.config import SimConfig
 from viva_sitl.dynamics import EavState
 from viva_sitl.frame import RenderedFrame
 from viva_sitl.geo import GeoOrigin
-from viva_sitl.mavlink import CaptureResult, MavlinkEndpoint
+from viva_sitl.mavlink import CameraInfo, CaptureResult, MavlinkEndpoint, StreamEncoding, VideoStreamSpec
 from viva_sitl.sim import Simulator
 from viva_sitl.video import FrameScheduler, VideoPipeline
 
@@ -86,6 +86,30 @@ class SitlApp:
         return frame
 
     # --- CameraLink (MAVLink camera protocol) ------------------------------------------------
+    def camera_info(self) -> CameraInfo:
+        """The VAC and the RTP streams actually configured (ports after --video-port/--mjpeg-port/--instance)."""
+        cam = self.config.camera
+        streams: list[VideoStreamSpec] = []
+        if self.video is not None:
+            vc = self.video.config
+            common = {
+                "framerate_hz": float(vc.fps),
+                "width_px": cam.width_px,
+                "height_px": cam.height_px,
+                "hfov_deg": cam.hfov_deg,
+            }
+            if vc.h264_rtp:
+                streams.append(
+                    VideoStreamSpec(f"udp://{vc.host}:{vc.h264_port}", StreamEncoding.H264, "VAC H.264",
+                                    bitrate_bps=vc.bitrate_kbps * 1000, **common)  # type: ignore[arg-type]
+                )  # fmt: skip
+            if vc.mjpeg_rtp:
+                streams.append(
+                    VideoStreamSpec(f"udp://{vc.host}:{vc.mjpeg_port}", StreamEncoding.MJPEG, "VAC MJPEG",
+                                    **common)  # type: ignore[arg-type]
+                )  # fmt: skip
+        return CameraInfo(cam.width_px, cam.height_px, cam.hfov_deg, tuple(streams))
+
     def capture_image(self, seq: int) -> CaptureResult:
         """Save the latest VAC frame and its pose (PNG + JSON sidecar) under run_dir/captures."""
         frame = self.last_frame
@@ -151,10 +175,12 @@ class SitlApp:
 
     def _print_ready(self) -> None:
         m = self.config.mavlink
+        api_host, api_port = self.endpoint.api_address
+        gcs_host, gcs_port = self.endpoint.gcs_address
         parts = [
             f"viva-sitl ready: sysid {m.system_id} footage {self.sim.footage.metadata.name}",
-            f"mavlink api udp {m.listen_host}:{m.api_local_port_resolved} -> {m.api_remote_host}:{m.api_remote_port_resolved}",
-            f"gcs udp {m.listen_host}:{m.gcs_local_port_resolved} -> {m.gcs_remote_host}:{m.gcs_remote_port}",
+            f"mavlink api udp {api_host}:{api_port} -> {m.api_remote_host}:{m.api_remote_port_resolved}",
+            f"gcs udp {gcs_host}:{gcs_port} -> {m.gcs_remote_host}:{m.gcs_remote_port}",
         ]
         if self.video is not None:
             for kind, sdp in self.video.sdp_paths.items():

@@ -1,0 +1,88 @@
+"""pymavlink as a codec only: decoding one UDP datagram at a time, and per-link encoders.
+
+pymavlink's parser keeps state across calls: a truncated frame would swallow the start of the next datagram. Every
+datagram is therefore parsed from a clean parser state, and after a frame that fails its length/CRC check the
+parser resynchronises one byte after that frame's start marker, so garbage cannot hide a valid frame behind it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from pymavlink.dialects.v20 import common as mavlink2
+
+from viva_sitl.mavlink.base import MavMessage
+
+# A datagram from a real client holds one or a few frames; adversarial garbage full of start markers would
+# otherwise cost one CRC per byte. Past this many decode attempts the rest of the datagram is dropped (counted).
+MAX_ATTEMPTS_PER_DATAGRAM = 256
+
+
+@dataclass
+class ParseResult:
+    messages: list[MavMessage] = field(default_factory=list)
+    bad_frames: int = 0  # frames with a bad CRC/length/header, or truncated at the end of the datagram
+    garbage_bytes: int = 0  # bytes skipped while looking for a start marker
+    unknown: int = 0  # well-formed frames whose message id is not in the dialect
+
+
+class DatagramParser:
+    """Decoder for one peer (one parser per peer address). `parse(datagram)` never raises on bad input."""
+
+    def __init__(self) -> None:
+        self._mav = mavlink2.MAVLink(None)
+        self._mav.robust_parsing = True  # bad data comes back as MAVLink_bad_data instead of raising
+
+    def _reset(self, buf: bytearray, index: int) -> None:
+        mav = self._mav
+        mav.buf = buf
+        mav.buf_index = index
+        mav.expected_length = mavlink2.HEADER_LEN_V1 + 2
+        mav.have_prefix_error = False
+
+    def parse(self, datagram: bytes) -> ParseResult:
+        result = ParseResult()
+        buf = bytearray(datagram)
+        mav = self._mav
+        self._reset(buf, 0)
+        for _ in range(MAX_ATTEMPTS_PER_DATAGRAM):
+            if mav.buf_len() <= 0:
+                break
+            start = mav.buf_index
+            try:
+                msg = mav.parse_char(b"")
+            except Exception:  # pymavlink should not raise with robust_parsing; if it does, resync past it
+                msg = mavlink2.MAVLink_bad_data(bytes(buf[start : start + 1]), "decoder exception")
+            if msg is None:
+                # a frame that needs more bytes than the datagram holds: truncated; look for a frame after its marker
+                result.bad_frames += 1
+                self._reset(buf, start + 1)
+                continue
+            if isinstance(msg, mavlink2.MAVLink_bad_data):
+                if msg.reason == "Bad prefix":
+                    result.garbage_bytes += len(msg.data)
+                else:
+                    result.bad_frames += 1
+                    self._reset(buf, start + 1)
+                continue
+            if isinstance(msg, mavlink2.MAVLink_unknown):
+                result.unknown += 1
+                continue
+            result.messages.append(msg)
+        else:
+            if mav.buf_len() > 0:
+                result.garbage_bytes += mav.buf_len()
+        self._reset(bytearray(), 0)
+        return result
+
+
+class Encoder:
+    """One outgoing MAVLink 2 stream (per link and component: each has its own sequence number)."""
+
+    def __init__(self, sysid: int, compid: int) -> None:
+        self.mav = mavlink2.MAVLink(None, srcSystem=sysid, srcComponent=compid)
+
+    def pack(self, msg: MavMessage) -> bytes:
+        buf = bytes(msg.pack(self.mav))
+        self.mav.seq = (self.mav.seq + 1) % 256
+        return buf

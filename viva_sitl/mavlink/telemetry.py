@@ -1,0 +1,529 @@
+"""Telemetry: message builders from the vehicle state, and per-link stream rates (SET_MESSAGE_INTERVAL).
+
+Rates follow PX4's mavlink modes: by default both links run PX4's "onboard" profile (ATTITUDE 100 Hz, ...) as the
+issue asks; PX4's lighter "normal" profile (what PX4 SITL runs on its GCS link) is available per link. Each link
+keeps its own intervals, changed by SET_MESSAGE_INTERVAL received on that link (0 = back to the default, -1 = off). Scheduling is on the wall clock of the event loop.
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+
+from pymavlink.dialects.v20 import common as mavlink2
+
+from viva_sitl.autopilot.types import FlightMode, LandedState
+from viva_sitl.dynamics import EavState, quat_from_euler
+from viva_sitl.mavlink.base import UINT16_MAX, MavMessage, VehicleLink, clamp_int, time_boot_ms, time_boot_us
+
+M = mavlink2
+MAX_STREAM_HZ = 500.0  # SET_MESSAGE_INTERVAL requests faster than this are capped (CPU of a 2-core machine)
+
+# MAV_SYS_STATUS_SENSOR bits this vehicle reports present + enabled + healthy (simulated sensors never fail)
+SENSORS_ALWAYS = (
+    M.MAV_SYS_STATUS_SENSOR_3D_GYRO
+    | M.MAV_SYS_STATUS_SENSOR_3D_ACCEL
+    | M.MAV_SYS_STATUS_SENSOR_3D_MAG
+    | M.MAV_SYS_STATUS_SENSOR_ABSOLUTE_PRESSURE
+    | M.MAV_SYS_STATUS_SENSOR_GPS
+    | M.MAV_SYS_STATUS_SENSOR_ANGULAR_RATE_CONTROL
+    | M.MAV_SYS_STATUS_SENSOR_ATTITUDE_STABILIZATION
+    | M.MAV_SYS_STATUS_SENSOR_YAW_POSITION
+    | M.MAV_SYS_STATUS_SENSOR_Z_ALTITUDE_CONTROL
+    | M.MAV_SYS_STATUS_SENSOR_XY_POSITION_CONTROL
+    | M.MAV_SYS_STATUS_SENSOR_MOTOR_OUTPUTS
+    | M.MAV_SYS_STATUS_AHRS
+    | M.MAV_SYS_STATUS_SENSOR_BATTERY
+)
+SENSOR_RC = M.MAV_SYS_STATUS_SENSOR_RC_RECEIVER
+SENSOR_PREARM = M.MAV_SYS_STATUS_PREARM_CHECK
+
+AUTOPILOT_CAPABILITIES = (
+    M.MAV_PROTOCOL_CAPABILITY_MISSION_FLOAT
+    | M.MAV_PROTOCOL_CAPABILITY_PARAM_FLOAT
+    | M.MAV_PROTOCOL_CAPABILITY_MISSION_INT
+    | M.MAV_PROTOCOL_CAPABILITY_COMMAND_INT
+    | M.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_BYTEWISE
+    | M.MAV_PROTOCOL_CAPABILITY_SET_ATTITUDE_TARGET
+    | M.MAV_PROTOCOL_CAPABILITY_SET_POSITION_TARGET_LOCAL_NED
+    | M.MAV_PROTOCOL_CAPABILITY_SET_POSITION_TARGET_GLOBAL_INT
+    | M.MAV_PROTOCOL_CAPABILITY_FLIGHT_TERMINATION
+    | M.MAV_PROTOCOL_CAPABILITY_MAVLINK2
+)
+# What AUTOPILOT_VERSION claims: PX4 v1.15.0 "official" (QGC enables features by PX4 version)
+FLIGHT_SW_VERSION = (1 << 24) | (15 << 16) | (0 << 8) | 255
+
+
+_MI = M.MAV_MODE_FLAG_MANUAL_INPUT_ENABLED
+_ST = M.MAV_MODE_FLAG_STABILIZE_ENABLED
+_GU = M.MAV_MODE_FLAG_GUIDED_ENABLED
+_AU = M.MAV_MODE_FLAG_AUTO_ENABLED
+# PX4 main mode -> extra HEARTBEAT.base_mode flags (MANUAL, ALTCTL, POSCTL, AUTO, ACRO, OFFBOARD, STABILIZED)
+_MODE_FLAGS = {
+    1: _MI | _ST,
+    2: _MI | _ST,
+    3: _MI | _ST | _GU,
+    4: _AU | _ST | _GU,
+    5: _MI,
+    6: _AU | _ST | _GU,
+    7: _MI | _ST,
+}
+
+
+class StreamProfile(enum.Enum):
+    """PX4 mavlink mode whose default rates a link uses."""
+
+    ONBOARD = "onboard"
+    NORMAL = "normal"
+
+
+# message id -> default rate (Hz) per profile; absent = not streamed by default (SET_MESSAGE_INTERVAL can enable it)
+PROFILE_RATES_HZ: dict[StreamProfile, dict[int, float]] = {
+    StreamProfile.ONBOARD: {
+        M.MAVLINK_MSG_ID_ATTITUDE: 100.0,
+        M.MAVLINK_MSG_ID_ATTITUDE_QUATERNION: 50.0,
+        M.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: 50.0,
+        M.MAVLINK_MSG_ID_LOCAL_POSITION_NED: 30.0,
+        M.MAVLINK_MSG_ID_ALTITUDE: 10.0,
+        M.MAVLINK_MSG_ID_GPS_RAW_INT: 10.0,
+        M.MAVLINK_MSG_ID_EXTENDED_SYS_STATE: 5.0,
+        M.MAVLINK_MSG_ID_SYS_STATUS: 5.0,
+        M.MAVLINK_MSG_ID_VFR_HUD: 4.0,
+        M.MAVLINK_MSG_ID_BATTERY_STATUS: 1.0,
+        M.MAVLINK_MSG_ID_MISSION_CURRENT: 1.0,
+        M.MAVLINK_MSG_ID_SYSTEM_TIME: 1.0,
+        M.MAVLINK_MSG_ID_HOME_POSITION: 0.5,
+    },
+    StreamProfile.NORMAL: {
+        M.MAVLINK_MSG_ID_ATTITUDE: 15.0,
+        M.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: 5.0,
+        M.MAVLINK_MSG_ID_VFR_HUD: 4.0,
+        M.MAVLINK_MSG_ID_LOCAL_POSITION_NED: 1.0,
+        M.MAVLINK_MSG_ID_ALTITUDE: 1.0,
+        M.MAVLINK_MSG_ID_GPS_RAW_INT: 1.0,
+        M.MAVLINK_MSG_ID_EXTENDED_SYS_STATE: 1.0,
+        M.MAVLINK_MSG_ID_SYS_STATUS: 1.0,
+        M.MAVLINK_MSG_ID_MISSION_CURRENT: 1.0,
+        M.MAVLINK_MSG_ID_SYSTEM_TIME: 1.0,
+        M.MAVLINK_MSG_ID_BATTERY_STATUS: 0.5,
+        M.MAVLINK_MSG_ID_HOME_POSITION: 0.5,
+    },
+}
+
+
+def message_id(name: str) -> int:
+    """MAVLink message id by name ("ATTITUDE" -> 30); ValueError for unknown names."""
+    msgid = getattr(M, f"MAVLINK_MSG_ID_{name.upper()}", None)
+    if not isinstance(msgid, int):
+        raise ValueError(f"unknown MAVLink message name {name!r}")
+    return msgid
+
+
+def _euler_rates_to_body(
+    roll: float, pitch: float, d_roll: float, d_pitch: float, d_yaw: float
+) -> tuple[float, float, float]:
+    """ZYX Euler angle rates -> FRD body rates (p, q, r)."""
+    sr, cr = math.sin(roll), math.cos(roll)
+    sp, cp = math.sin(pitch), math.cos(pitch)
+    return (d_roll - d_yaw * sp, d_pitch * cr + d_yaw * cp * sr, -d_pitch * sr + d_yaw * cp * cr)
+
+
+def _wrap(a: float) -> float:
+    return (a + math.pi) % (2.0 * math.pi) - math.pi
+
+
+def _f(x: float) -> float:
+    """A wire float: non-finite values (which a sane state never has) become 0 so clients never see NaN garbage."""
+    return float(x) if math.isfinite(x) else 0.0
+
+
+@dataclass(frozen=True)
+class Snapshot:
+    """Derived quantities of one physics state (computed once per state, shared by every message built from it)."""
+
+    pos_ned_m: tuple[float, float, float]
+    vel_ned_m_s: tuple[float, float, float]
+    rpy_rad: tuple[float, float, float]
+    body_rates_rad_s: tuple[float, float, float]
+    q_wxyz: tuple[float, float, float, float]
+    lat_deg: float
+    lon_deg: float
+    alt_amsl_m: float
+    home_ned_m: tuple[float, float, float]
+    home_lat_deg: float
+    home_lon_deg: float
+    home_alt_amsl_m: float
+    thrust_n: float
+
+    @property
+    def relative_alt_m(self) -> float:
+        return self.home_ned_m[2] - self.pos_ned_m[2]
+
+    @property
+    def heading_deg(self) -> float:
+        return math.degrees(self.rpy_rad[2]) % 360.0
+
+    @property
+    def ground_speed_m_s(self) -> float:
+        return math.hypot(self.vel_ned_m_s[0], self.vel_ned_m_s[1])
+
+
+def _finite3(v: object) -> tuple[float, float, float]:
+    a = [float(x) for x in v]  # type: ignore[attr-defined]
+    return (_f(a[0]), _f(a[1]), _f(a[2]))
+
+
+class TelemetryBuilder:
+    """Builds every telemetry message from the vehicle (autopilot + latest state)."""
+
+    def __init__(self, vehicle: VehicleLink, sysid: int) -> None:
+        self.vehicle = vehicle
+        self.sysid = sysid
+        self._state: EavState | None = None
+        self._home: tuple[float, float, float] | None = None
+        self._snap: Snapshot | None = None
+        self._prev_att: tuple[float, float, float, float] | None = None  # (t, roll, pitch, yaw)
+        self._rates = (0.0, 0.0, 0.0)
+        self.last_manual_input_s = -math.inf  # wall time of the last MANUAL_CONTROL (RC "present" bit)
+        self.prearm_ok: Callable[[], bool] = lambda: not self.vehicle.autopilot.armed
+        self.builders: dict[int, Callable[[], MavMessage]] = {
+            M.MAVLINK_MSG_ID_HEARTBEAT: self.heartbeat,
+            M.MAVLINK_MSG_ID_SYS_STATUS: self.sys_status,
+            M.MAVLINK_MSG_ID_SYSTEM_TIME: self.system_time,
+            M.MAVLINK_MSG_ID_ATTITUDE: self.attitude,
+            M.MAVLINK_MSG_ID_ATTITUDE_QUATERNION: self.attitude_quaternion,
+            M.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: self.global_position_int,
+            M.MAVLINK_MSG_ID_LOCAL_POSITION_NED: self.local_position_ned,
+            M.MAVLINK_MSG_ID_GPS_RAW_INT: self.gps_raw_int,
+            M.MAVLINK_MSG_ID_EXTENDED_SYS_STATE: self.extended_sys_state,
+            M.MAVLINK_MSG_ID_BATTERY_STATUS: self.battery_status,
+            M.MAVLINK_MSG_ID_HOME_POSITION: self.home_position,
+            M.MAVLINK_MSG_ID_VFR_HUD: self.vfr_hud,
+            M.MAVLINK_MSG_ID_MISSION_CURRENT: self.mission_current,
+            M.MAVLINK_MSG_ID_ALTITUDE: self.altitude,
+            M.MAVLINK_MSG_ID_AUTOPILOT_VERSION: self.autopilot_version,
+        }
+
+    # --- snapshot ---------------------------------------------------------------------------
+    def snapshot(self) -> Snapshot:
+        state = self.vehicle.state
+        home = tuple(float(v) for v in self.vehicle.autopilot.home_ned_m)
+        if self._snap is not None and state is self._state and home == self._home:
+            return self._snap
+        pos = _finite3(state.pos_ned_m)
+        vel = _finite3(state.vel_ned_m_s)
+        roll, pitch, yaw = _finite3(state.att_rpy_rad)
+        t = float(state.time_s)
+        if self._prev_att is not None and state is not self._state:
+            t0, r0, p0, y0 = self._prev_att
+            dt = t - t0
+            if dt > 1e-6:
+                self._rates = _euler_rates_to_body(
+                    roll, pitch, (roll - r0) / dt, (pitch - p0) / dt, _wrap(yaw - y0) / dt
+                )
+                self._rates = _finite3(self._rates)
+        self._prev_att = (t, roll, pitch, yaw)
+        geo = self.vehicle.geo
+        lat, lon, alt = geo.ned_to_global(*pos)
+        home3 = (
+            (home[0], home[1], home[2])
+            if len(home) == 3 and all(math.isfinite(v) for v in home)
+            else (0.0, 0.0, 0.0)
+        )
+        hlat, hlon, halt = geo.ned_to_global(*home3)
+        self._snap = Snapshot(
+            pos_ned_m=pos,
+            vel_ned_m_s=vel,
+            rpy_rad=(roll, pitch, yaw),
+            body_rates_rad_s=self._rates,
+            q_wxyz=quat_from_euler(roll, pitch, yaw),
+            lat_deg=lat,
+            lon_deg=lon,
+            alt_amsl_m=alt,
+            home_ned_m=home3,
+            home_lat_deg=hlat,
+            home_lon_deg=hlon,
+            home_alt_amsl_m=halt,
+            thrust_n=_f(float(state.thrust_n)),
+        )
+        self._state = state
+        self._home = home  # type: ignore[assignment]
+        return self._snap
+
+    def build(self, msgid: int) -> MavMessage | None:
+        builder = self.builders.get(msgid)
+        return builder() if builder is not None else None
+
+    # --- messages ---------------------------------------------------------------------------
+    def heartbeat(self) -> MavMessage:
+        ap = self.vehicle.autopilot
+        mode: FlightMode = ap.mode
+        base = M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
+        if ap.armed:
+            base |= M.MAV_MODE_FLAG_SAFETY_ARMED
+        # PX4's base_mode flags per main mode (mavlink heartbeat: get_mavlink_navigation_mode)
+        base |= _MODE_FLAGS.get(int(mode.value[0]), 0)
+        status = M.MAV_STATE_ACTIVE if ap.armed else M.MAV_STATE_STANDBY
+        return M.MAVLink_heartbeat_message(
+            M.MAV_TYPE_QUADROTOR, M.MAV_AUTOPILOT_PX4, base, mode.custom_mode, status, 3
+        )
+
+    def sys_status(self) -> MavMessage:
+        ap = self.vehicle.autopilot
+        present = SENSORS_ALWAYS | SENSOR_PREARM
+        enabled = SENSORS_ALWAYS | SENSOR_PREARM
+        health = SENSORS_ALWAYS
+        if math.isfinite(self.last_manual_input_s):
+            present |= SENSOR_RC
+            enabled |= SENSOR_RC
+            if time.monotonic() - self.last_manual_input_s < 1.0:
+                health |= SENSOR_RC
+        try:
+            if self.prearm_ok():
+                health |= SENSOR_PREARM
+        except Exception:  # a failing check is a failed check, never a dead telemetry stream
+            pass
+        volt_mv = clamp_int(ap.battery_voltage_v * 1000.0, 0, UINT16_MAX - 1)
+        remaining = clamp_int(ap.battery_remaining * 100.0, 0, 100)
+        return M.MAVLink_sys_status_message(
+            present, enabled, health, 200, volt_mv, self._current_ca(), remaining, 0, 0, 0, 0, 0, 0
+        )
+
+    def _current_ca(self) -> int:
+        """Battery current in cA (-1: unknown); battery_current_a is optional in the autopilot contract."""
+        amps = getattr(self.vehicle.autopilot, "battery_current_a", None)
+        if amps is None or not math.isfinite(float(amps)):
+            return -1
+        return clamp_int(float(amps) * 100.0, 0, 32767)
+
+    def system_time(self) -> MavMessage:
+        return M.MAVLink_system_time_message(int(time.time() * 1e6), time_boot_ms(self.vehicle))
+
+    def attitude(self) -> MavMessage:
+        s = self.snapshot()
+        return M.MAVLink_attitude_message(time_boot_ms(self.vehicle), *s.rpy_rad, *s.body_rates_rad_s)
+
+    def attitude_quaternion(self) -> MavMessage:
+        s = self.snapshot()
+        return M.MAVLink_attitude_quaternion_message(
+            time_boot_ms(self.vehicle), *s.q_wxyz, *s.body_rates_rad_s, (0.0, 0.0, 0.0, 0.0)
+        )
+
+    def global_position_int(self) -> MavMessage:
+        s = self.snapshot()
+        vn, ve, vd = s.vel_ned_m_s
+        return M.MAVLink_global_position_int_message(
+            time_boot_ms(self.vehicle),
+            clamp_int(s.lat_deg * 1e7, -900000000, 900000000),
+            clamp_int(s.lon_deg * 1e7, -1800000000, 1800000000),
+            clamp_int(s.alt_amsl_m * 1000.0, -(2**31), 2**31 - 1),
+            clamp_int(s.relative_alt_m * 1000.0, -(2**31), 2**31 - 1),
+            clamp_int(vn * 100.0, -32768, 32767),
+            clamp_int(ve * 100.0, -32768, 32767),
+            clamp_int(vd * 100.0, -32768, 32767),
+            clamp_int(s.heading_deg * 100.0, 0, 35999),
+        )
+
+    def local_position_ned(self) -> MavMessage:
+        s = self.snapshot()
+        return M.MAVLink_local_position_ned_message(time_boot_ms(self.vehicle), *s.pos_ned_m, *s.vel_ned_m_s)
+
+    def gps_raw_int(self) -> MavMessage:
+        s = self.snapshot()
+        cog = (
+            math.degrees(math.atan2(s.vel_ned_m_s[1], s.vel_ned_m_s[0])) % 360.0
+            if s.ground_speed_m_s > 0.1
+            else 0.0
+        )
+        alt_mm = clamp_int(s.alt_amsl_m * 1000.0, -(2**31), 2**31 - 1)
+        return M.MAVLink_gps_raw_int_message(
+            time_boot_us(self.vehicle),
+            M.GPS_FIX_TYPE_3D_FIX,
+            clamp_int(s.lat_deg * 1e7, -900000000, 900000000),
+            clamp_int(s.lon_deg * 1e7, -1800000000, 1800000000),
+            alt_mm,
+            80,  # HDOP 0.8
+            120,  # VDOP 1.2
+            clamp_int(s.ground_speed_m_s * 100.0, 0, UINT16_MAX - 1),
+            clamp_int(cog * 100.0, 0, 35999),
+            12,
+            alt_mm,
+            300,  # h_acc mm
+            500,  # v_acc mm
+            100,  # vel_acc mm/s
+            0,
+            0,
+        )
+
+    def extended_sys_state(self) -> MavMessage:
+        landed: LandedState = self.vehicle.autopilot.landed_state
+        return M.MAVLink_extended_sys_state_message(M.MAV_VTOL_STATE_UNDEFINED, int(landed))
+
+    def battery_status(self) -> MavMessage:
+        ap = self.vehicle.autopilot
+        volt_mv = clamp_int(ap.battery_voltage_v * 1000.0, 0, UINT16_MAX - 1)
+        remaining = ap.battery_remaining
+        charge = (
+            M.MAV_BATTERY_CHARGE_STATE_OK
+            if remaining > 0.15
+            else (M.MAV_BATTERY_CHARGE_STATE_LOW if remaining > 0.07 else M.MAV_BATTERY_CHARGE_STATE_CRITICAL)
+        )
+        return M.MAVLink_battery_status_message(
+            0,
+            M.MAV_BATTERY_FUNCTION_ALL,
+            M.MAV_BATTERY_TYPE_LIPO,
+            0x7FFF,  # temperature unknown
+            [volt_mv] + [UINT16_MAX] * 9,
+            self._current_ca(),
+            -1,
+            -1,
+            clamp_int(remaining * 100.0, 0, 100),
+            0,
+            charge,
+            [0, 0, 0, 0],
+            0,
+            0,
+        )
+
+    def home_position(self) -> MavMessage:
+        s = self.snapshot()
+        h = s.home_ned_m
+        return M.MAVLink_home_position_message(
+            clamp_int(s.home_lat_deg * 1e7, -900000000, 900000000),
+            clamp_int(s.home_lon_deg * 1e7, -1800000000, 1800000000),
+            clamp_int(s.home_alt_amsl_m * 1000.0, -(2**31), 2**31 - 1),
+            h[0],
+            h[1],
+            h[2],
+            [1.0, 0.0, 0.0, 0.0],
+            0.0,
+            0.0,
+            0.0,
+            time_boot_us(self.vehicle),
+        )
+
+    def vfr_hud(self) -> MavMessage:
+        s = self.snapshot()
+        ap = self.vehicle.autopilot
+        eav_params = getattr(ap, "eav_params", None)  # the live airframe (SIM_MASS), optional in the contract
+        max_thrust_n = float(eav_params().max_thrust_n if callable(eav_params) else ap.eav.max_thrust_n)
+        throttle = clamp_int(100.0 * s.thrust_n / max_thrust_n, 0, 100) if max_thrust_n > 0 else 0
+        return M.MAVLink_vfr_hud_message(
+            s.ground_speed_m_s,
+            s.ground_speed_m_s,
+            clamp_int(s.heading_deg, 0, 359),
+            throttle,
+            s.alt_amsl_m,
+            -s.vel_ned_m_s[2],
+        )
+
+    def mission_current(self) -> MavMessage:
+        ap = self.vehicle.autopilot
+        total = len(ap.mission_items)
+        seq = max(0, int(ap.mission_current_seq))
+        in_mission = ap.mode == FlightMode.AUTO_MISSION
+        finished = bool(getattr(ap, "mission_finished", False))  # optional in the autopilot contract
+        if total == 0:
+            state = M.MISSION_STATE_NO_MISSION
+        elif finished or seq >= total:
+            state = M.MISSION_STATE_COMPLETE
+        elif in_mission:
+            state = M.MISSION_STATE_ACTIVE
+        elif seq == 0:
+            state = M.MISSION_STATE_NOT_STARTED
+        else:
+            state = M.MISSION_STATE_PAUSED
+        mission_mode = 1 if in_mission else 2
+        return M.MAVLink_mission_current_message(min(seq, 0xFFFF), min(total, 0xFFFF), state, mission_mode)
+
+    def altitude(self) -> MavMessage:
+        s = self.snapshot()
+        up = -s.pos_ned_m[2]
+        return M.MAVLink_altitude_message(
+            time_boot_us(self.vehicle), s.alt_amsl_m, s.alt_amsl_m, up, s.relative_alt_m, up, up
+        )
+
+    def autopilot_version(self) -> MavMessage:
+        uid = 0x56495641_00000000 | self.sysid  # "VIVA" + sysid: unique per instance
+        return M.MAVLink_autopilot_version_message(
+            AUTOPILOT_CAPABILITIES,
+            FLIGHT_SW_VERSION,
+            0,
+            0,
+            0,
+            [0] * 8,
+            [0] * 8,
+            [0] * 8,
+            0,
+            0,
+            uid,
+            [0] * 18,
+        )
+
+
+@dataclass
+class Stream:
+    msgid: int
+    default_interval_s: float | None  # None: not streamed unless requested
+    interval_s: float | None
+    next_due_s: float = 0.0
+
+
+class LinkStreams:
+    """The stream table of one link: which messages go out, how often, and when next."""
+
+    def __init__(self, profile: StreamProfile, overrides_hz: dict[int, float], builders: set[int]) -> None:
+        rates = dict(PROFILE_RATES_HZ[profile])
+        rates.update(overrides_hz)
+        self.builders = builders
+        self.streams: dict[int, Stream] = {}
+        for msgid, hz in rates.items():
+            interval = 1.0 / hz if hz > 0 else None
+            self.streams[msgid] = Stream(msgid, interval, interval)
+
+    def set_interval(self, msgid: int, interval_us: float, now_s: float) -> bool:
+        """SET_MESSAGE_INTERVAL semantics. False when the message cannot be streamed by this vehicle."""
+        if msgid not in self.builders or msgid == M.MAVLINK_MSG_ID_HEARTBEAT:
+            return False
+        stream = self.streams.get(msgid)
+        if stream is None:
+            stream = self.streams[msgid] = Stream(msgid, None, None)
+        if not math.isfinite(interval_us):
+            return False
+        if interval_us == 0:
+            stream.interval_s = stream.default_interval_s
+        elif interval_us < 0:
+            stream.interval_s = None
+        else:
+            stream.interval_s = max(interval_us * 1e-6, 1.0 / MAX_STREAM_HZ)
+        stream.next_due_s = now_s
+        return True
+
+    def interval_us(self, msgid: int) -> int:
+        """MESSAGE_INTERVAL.interval_us: -1 off, 0 unavailable."""
+        if msgid not in self.builders:
+            return 0
+        stream = self.streams.get(msgid)
+        if stream is None or stream.interval_s is None:
+            return -1
+        return int(round(stream.interval_s * 1e6))
+
+    def due(self, now_s: float) -> list[int]:
+        """Message ids due at `now_s`; advances their schedule (no bursts after a stall)."""
+        out = []
+        for stream in self.streams.values():
+            if stream.interval_s is None or now_s < stream.next_due_s:
+                continue
+            out.append(stream.msgid)
+            stream.next_due_s += stream.interval_s
+            if stream.next_due_s <= now_s:
+                stream.next_due_s = now_s + stream.interval_s
+        return out
+
+    def next_due_s(self) -> float:
+        return min(
+            (s.next_due_s for s in self.streams.values() if s.interval_s is not None), default=math.inf
+        )
