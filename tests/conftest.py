@@ -1,0 +1,83 @@
+"""Shared fixtures: the ../shared footage (skip when absent), free UDP ports, viva-sitl subprocesses, MAVLink peers."""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Generator, Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+from sitl_process import MavlinkPeer, SitlProcess, e2e_speed, free_udp_ports
+
+SHARED_DIR = Path(__file__).resolve().parents[2] / "shared"
+
+
+@pytest.hookimpl(wrapper=True, tryfirst=True)
+def pytest_runtest_makereport(
+    item: pytest.Item, call: pytest.CallInfo[None]
+) -> Generator[None, pytest.TestReport, pytest.TestReport]:
+    # Remember each phase's report on the test item, so fixtures can print logs only for failed tests.
+    rep = yield
+    setattr(item, f"rep_{rep.when}", rep)
+    return rep
+
+
+@pytest.fixture
+def shared_dir() -> Path:
+    if not SHARED_DIR.is_dir():
+        pytest.skip(f"shared footage directory {SHARED_DIR} is absent")
+    return SHARED_DIR
+
+
+@pytest.fixture
+def interchange_video(shared_dir: Path) -> Path:
+    path = shared_dir / "footage" / "interchange" / "interchange_1080p.mp4"
+    if not path.is_file():
+        pytest.skip(f"shared footage {path} is absent")
+    return path
+
+
+@pytest.fixture
+def udp_ports() -> Callable[[int], list[int]]:
+    """free_udp_ports(n): n distinct UDP ports free on 127.0.0.1."""
+    return free_udp_ports
+
+
+@pytest.fixture
+def sitl_factory(tmp_path: Path, request: pytest.FixtureRequest) -> Iterator[Callable[..., SitlProcess]]:
+    """start(**SitlProcess kwargs) -> a ready viva-sitl process; every one is stopped at teardown (logs on failure)."""
+    started: list[SitlProcess] = []
+
+    def start(**kwargs: Any) -> SitlProcess:
+        kwargs.setdefault("speed", e2e_speed())
+        kwargs.setdefault("name", f"sitl{len(started)}")
+        proc = SitlProcess(workdir=tmp_path, **kwargs)
+        started.append(proc)
+        return proc.start()
+
+    yield start
+    failed = getattr(request.node, "rep_call", None) is not None and request.node.rep_call.failed
+    for proc in started:
+        code = proc.stop()
+        if failed:
+            print(f"\n[viva-sitl {proc.name} exit {code}]\n{proc.logs()}")
+
+
+@pytest.fixture
+def sitl(sitl_factory: Callable[..., SitlProcess]) -> SitlProcess:
+    """One viva-sitl over the synthetic field, on free ports, at the e2e speed factor."""
+    return sitl_factory()
+
+
+@pytest.fixture
+def peer_factory() -> Iterator[Callable[[int], MavlinkPeer]]:
+    peers: list[MavlinkPeer] = []
+
+    def make(port: int) -> MavlinkPeer:
+        peer = MavlinkPeer(port)
+        peers.append(peer)
+        return peer
+
+    yield make
+    for peer in peers:
+        peer.close()

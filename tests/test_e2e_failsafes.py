@@ -1,0 +1,158 @@
+"""End to end, PX4's failsafes over MAVLink: offboard loss (COM_OF_LOSS_T), the footage edge as geofence (GF_ACTION),
+ground-station link loss (NAV_DLL_ACT). Driven in-test with pymavlink on the GCS link."""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+from typing import Any
+
+import pytest
+from pymavlink.dialects.v20 import common as mavlink2
+from sitl_process import (
+    LANDED_ON_GROUND,
+    MODE_AUTO_LAND,
+    MODE_AUTO_LOITER,
+    MODE_OFFBOARD,
+    MavlinkPeer,
+    SetpointStreamer,
+    SitlProcess,
+    home_of,
+    is_armed,
+    offset,
+    takeoff,
+)
+
+pytestmark = pytest.mark.e2e
+
+POSITION_MASK = 2552  # position + yaw (MAVSDK set_position_ned)
+VELOCITY_MASK = 2503  # velocity + yaw (MAVSDK set_velocity_ned)
+SYNTHETIC_HALF_SIZE_M = 102.4  # the synthetic field is 204.8 m square, centred on home
+
+
+def autopilot_mode(peer: MavlinkPeer, mode: int, timeout_s: float, what: str) -> Any:
+    return peer.wait(
+        "HEARTBEAT", lambda m: m.get_srcComponent() == 1 and m.custom_mode == mode, timeout_s, what=what
+    )
+
+
+def enter_offboard(peer: MavlinkPeer, setpoint: Any) -> SetpointStreamer:
+    streamer = SetpointStreamer(peer, setpoint)
+    time.sleep(1.0)  # let the 20 Hz stream flow first, as PX4 wants
+    ack = peer.command_long(mavlink2.MAV_CMD_DO_SET_MODE, [129.0, 6.0, 0.0])
+    assert ack.result == mavlink2.MAV_RESULT_ACCEPTED, f"OFFBOARD: MAV_RESULT {ack.result}"
+    autopilot_mode(peer, MODE_OFFBOARD, 3.0, "OFFBOARD")
+    return streamer
+
+
+def land_and_wait(peer: MavlinkPeer) -> None:
+    assert peer.command_long(mavlink2.MAV_CMD_NAV_LAND, [math.nan] * 7).result == mavlink2.MAV_RESULT_ACCEPTED
+    peer.wait(
+        "HEARTBEAT",
+        lambda m: (
+            m.get_srcComponent() == 1
+            and not is_armed(m)
+            and peer.latest("EXTENDED_SYS_STATE").landed_state == 1
+        ),
+        60.0,
+        what="landed and disarmed",
+    )
+
+
+def warnings_since(peer: MavlinkPeer, t0: float) -> list[str]:
+    return [
+        m.text for m in peer.messages("STATUSTEXT", since_s=t0) if m.severity <= mavlink2.MAV_SEVERITY_WARNING
+    ]
+
+
+def test_offboard_setpoint_loss_falls_back_to_hold(
+    sitl: SitlProcess, peer_factory: Callable[[int], MavlinkPeer]
+) -> None:
+    peer = peer_factory(sitl.ports.gcs)
+    peer.wait_autopilot()
+    hover = takeoff(peer, 3.0)
+    loss_s = float(peer.set_param("COM_OF_LOSS_T", 1.0).param_value)
+    hold = peer.mav.set_position_target_local_ned_encode(
+        0, 1, 1, 1, POSITION_MASK, hover.x, hover.y, -3.0, 0, 0, 0, 0, 0, 0, 0, 0
+    )
+    streamer = enter_offboard(peer, hold)
+    time.sleep(0.5)
+    assert peer.wait("HEARTBEAT", lambda m: m.get_srcComponent() == 1, 2.0).custom_mode == MODE_OFFBOARD
+    streamer.stop()
+    lost = time.monotonic()
+    # COM_OBL_RC_ACT 0 without RC -> Hold, after COM_OF_LOSS_T of sim time (shorter in wall time at a speed factor).
+    autopilot_mode(peer, MODE_AUTO_LOITER, loss_s / sitl.speed + 5.0, "Hold after offboard loss")
+    assert warnings_since(peer, lost), "no STATUSTEXT warning about the offboard loss"
+    x, y, z = peer.local_position()
+    assert math.hypot(x - hover.x, y - hover.y) < 1.0 and abs(z + 3.0) < 0.5, "did not hold where it was"
+    land_and_wait(peer)
+
+
+def test_footage_edge_geofence_holds_inside_and_refuses_outside_missions(
+    sitl: SitlProcess, peer_factory: Callable[[int], MavlinkPeer]
+) -> None:
+    peer = peer_factory(sitl.ports.gcs)
+    peer.wait_autopilot()
+    lat0, lon0 = home_of(peer)
+
+    def waypoint(seq: int, north_m: float) -> Any:
+        lat, lon = offset(lat0, lon0, north_m, 0.0)
+        return peer.mav.mission_item_int_encode(
+            1, 1, seq, 3, mavlink2.MAV_CMD_NAV_WAYPOINT, 0, 1, 0, 1.0, 0, math.nan, lat, lon, 5.0, 0
+        )
+
+    outside = [waypoint(0, 40.0), waypoint(1, SYNTHETIC_HALF_SIZE_M + 50.0)]
+    ack = peer.upload_mission(outside)
+    assert ack.type != mavlink2.MAV_MISSION_ACCEPTED, "a mission leaving the footage was accepted"
+
+    takeoff(peer, 5.0)
+    t0 = time.monotonic()
+    north = peer.mav.set_position_target_local_ned_encode(
+        0, 1, 1, 1, VELOCITY_MASK, 0, 0, 0, 8.0, 0, 0, 0, 0, 0, 0, 0
+    )
+    streamer = enter_offboard(peer, north)
+    try:
+        autopilot_mode(peer, MODE_AUTO_LOITER, 60.0, "Hold at the footage edge (GF_ACTION 2)")
+    finally:
+        streamer.stop()
+    breach_warnings = warnings_since(peer, t0)
+    assert any("geofence" in text.lower() for text in breach_warnings), breach_warnings
+    # Hold flies back to the last position that was still inside the footage (it brakes past the edge first).
+    settled = peer.wait(
+        "LOCAL_POSITION_NED",
+        lambda m: m.x < SYNTHETIC_HALF_SIZE_M and math.hypot(m.vx, m.vy) < 0.2,
+        30.0,
+        what="back inside the footage and still, in Hold",
+    )
+    assert settled.x > 80.0, (
+        f"holding at x = {settled.x:.1f} m, far from the edge at {SYNTHETIC_HALF_SIZE_M} m"
+    )
+    time.sleep(1.0)
+    x, _, _ = peer.local_position()
+    assert abs(x - settled.x) < 1.0, f"not holding: x went {settled.x:.1f} -> {x:.1f} m"
+    assert max(m.x for m in peer.messages("LOCAL_POSITION_NED")) < SYNTHETIC_HALF_SIZE_M + 15.0, (
+        "overshot far"
+    )
+    land_and_wait(peer)
+
+
+def test_gcs_link_loss_triggers_nav_dll_act(
+    sitl: SitlProcess, peer_factory: Callable[[int], MavlinkPeer]
+) -> None:
+    peer = peer_factory(sitl.ports.gcs)
+    peer.wait_autopilot()
+    assert peer.set_param_int("NAV_DLL_ACT", 3) == 3  # 3 = Land
+    loss_s = peer.set_param_int("COM_DL_LOSS_T", 5)
+    assert loss_s == 5
+    takeoff(peer, 3.0)
+    assert peer.latest("HEARTBEAT", component=1).custom_mode == MODE_AUTO_LOITER
+    peer.heartbeat = False  # the ground station goes silent
+    silent = time.monotonic()
+    autopilot_mode(peer, MODE_AUTO_LAND, loss_s / sitl.speed + 10.0, "AUTO.LAND after GCS link loss")
+    quiet_wall_s = time.monotonic() - peer.last_heartbeat_sent_s
+    assert quiet_wall_s > 0.8 * loss_s / sitl.speed, (
+        f"failsafe {quiet_wall_s:.2f} s after the last GCS heartbeat"
+    )
+    assert warnings_since(peer, silent), "no STATUSTEXT about the link loss"
+    peer.wait("EXTENDED_SYS_STATE", lambda m: m.landed_state == LANDED_ON_GROUND, 60.0, what="touchdown")
