@@ -35,6 +35,8 @@ class GeoOrigin:
         arg = math.sin(lat0) * math.sin(lat) + math.cos(lat0) * math.cos(lat) * cos_d_lon
         c = math.acos(max(-1.0, min(1.0, arg)))
         k = c / math.sin(c) if abs(c) > 1e-12 else 1.0
-        north = k * (math.cos(lat0) * math.sin(lat) - math.sin(lat0) * math.cos(lat) * cos_d_lon) * EARTH_RADIUS_M
+        north = (
+            k * (math.cos(lat0) * math.sin(lat) - math.sin(lat0) * math.cos(lat) * cos_d_lon) * EARTH_RADIUS_M
+        )
         east = k * math.cos(lat) * math.sin(lon - lon0) * EARTH_RADIUS_M
         return north, east, self.alt_amsl_m - alt_amsl_m
