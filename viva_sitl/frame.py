@@ -20,7 +20,8 @@ class FrameMeta:
     width_px: int
     height_px: int
     intrinsics_k: tuple[tuple[float, float, float], ...]  # 3x3 pinhole K of the VAC (pixels)
-    cam_rot_body: tuple[tuple[float, float, float], ...]  # 3x3 R^b_v: camera axes (x right, y down, z optical) in FRD
+    # 3x3 R^b_v: camera axes (x right, y down, z optical) expressed in FRD
+    cam_rot_body: tuple[tuple[float, float, float], ...]
     cam_pos_body_m: tuple[float, float, float]  # T^b_v: camera position in FRD (m)
     coverage: float  # fraction of VAC pixels that see footage (1 = all; < 1: part outside, filled)
     lat_deg: float | None = None
