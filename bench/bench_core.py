@@ -9,11 +9,21 @@ that time and render one 640x480 VAC frame. Ours is timed in several variants, s
 
     ours_phys_250    physics only, 250 Hz EAV (8 or 9 EAV steps per 1/30 s)            vs ref (video)
     ours_phys_paper  physics only, EavParams.paper() (one 30 Hz step)                  vs ref (video)
+    ours_decode_only no physics, no render: only decode the footage frame each step needs (the ceiling of a
+                     full step over video: sim.footage.prefetch(index), i.e. PyAV decode, no conversion)
     ours_full_250    250 Hz physics + sim.render() (footage frame for the sim time + VAC)  vs ref (video)
     ours_full_paper  paper physics + sim.render()                                      vs ref (video)
+    ours_full_250_plain / _paper_plain   as full_* with Simulator(region_render=False): the whole frame
+                     converted to BGR and its pyramid built (the path before the region path)
+    ours_full_250_prefetch / _paper_prefetch   as full_* with Simulator(prefetch=True)
     ours_ingest_250  as full_250 over our `footage ingest` copy (x264 tune=fastdecode)  vs ref (video)
+    ours_ingest_levels_250  as ingest_250 over an ingest with a half-resolution copy, Simulator(footage_levels=True):
+                     at pyramid level >= 1 it decodes the half-resolution video (NOT the same image: lossy copy)
     ours_still_250   as full_250 over frame 0 as a still image (no decode)             vs ref_still
     ours_still_paper as full_paper over the still                                      vs ref_still
+
+In the *_250 variants one "step" (1/30 s) holds 8 or 9 physics steps and one render: that is what the API does
+when a user steps 250 Hz physics and renders at the camera rate; the tables also give physics steps/s for them.
 
 `ref` is DroneEnv over the 4K video (one decoded frame per step); `ref_still` is DroneEnv(fixed=True) over the
 same video (its first frame, read once; it still copies the 4K frame every step).
@@ -145,14 +155,14 @@ def make_still(clip: Path, rel_alt_m: float) -> Path:
     return still
 
 
-def make_ingest(clip: Path) -> Path:
-    """Our `footage ingest` copy of the clip (x264 tune=fastdecode, full resolution only), once."""
+def make_ingest(clip: Path, levels: int = 1) -> Path:
+    """Our `footage ingest` copy of the clip (x264 tune=fastdecode; full resolution, + half with levels=2), once."""
     from viva_sitl.footage.ingest import ingest
 
-    dest = clip.with_name(clip.stem + "_ingest")
-    if not (dest / "full.mp4").exists():
+    dest = clip.with_name(clip.stem + ("_ingest" if levels == 1 else f"_ingest{levels}"))
+    if not (dest / "footage.toml").exists():
         # the sibling <clip>.toml (make_clip) gives the ground scale that ingest writes into its footage.toml
-        ingest(str(clip.with_suffix(".toml")), out_dir=dest, levels=1, show_progress=False)
+        ingest(str(clip.with_suffix(".toml")), out_dir=dest, levels=levels, show_progress=False)
     return dest
 
 
@@ -234,7 +244,17 @@ def reference_available(python: str) -> str | None:
 class Ours:
     """The headless API (viva_sitl.sim.Simulator), one comparable step = 1/30 s of physics (+ optional render)."""
 
-    def __init__(self, clip: Path, args: argparse.Namespace, paper: bool, render: bool) -> None:
+    def __init__(
+        self,
+        clip: Path,
+        args: argparse.Namespace,
+        paper: bool,
+        render: bool,
+        region: bool = True,
+        prefetch: bool = False,
+        decode_only: bool = False,
+        footage_levels: bool = False,
+    ) -> None:
         from viva_sitl.camera import CameraParams
         from viva_sitl.config import SimConfig
         from viva_sitl.dynamics import EavCommand, EavParams
@@ -245,7 +265,14 @@ class Ours:
         camera = CameraParams(width_px=w, height_px=h, hfov_deg=DEFAULT_HFOV_DEG)
         # footage by path, as the API contract says; the sibling .toml (make_clip/make_still) or the ingest folder's
         # footage.toml gives the recording altitude and FoV
-        self.sim = Simulator(SimConfig(physics=physics, camera=camera), footage=str(clip))
+        self.sim = Simulator(
+            SimConfig(physics=physics, camera=camera),
+            footage=str(clip),
+            region_render=region,
+            prefetch=prefetch,
+            footage_levels=footage_levels,
+        )
+        self.decode_only = decode_only
         geom = self.sim.footage.geometry
         if (
             abs(geom.recording_altitude_m - args.rel_alt) > 1e-6
@@ -268,6 +295,8 @@ class Ours:
         sim.reset(seed=0, pos_ned_m=(0.0, 0.0, -self.z), yaw_rad=self.yaw_rad)
         if render:
             sim.render()  # as the reference's reset renders one view (untimed on both sides)
+        if self.decode_only:
+            return self._run_decode_only()
         c0 = time.process_time()
         t0 = time.perf_counter()
         for n in schedule:
@@ -280,15 +309,32 @@ class Ours:
             raise RuntimeError(f"hover drifted: altitude {sim.state.altitude_m} m")
         return self.steps / dt, 1e3 * cpu / self.steps
 
+    def _run_decode_only(self) -> tuple[float, float]:
+        """Decode (no conversion) the footage frame of each step's sim time: 1/30 s steps, as the full runs."""
+        src = self.sim.footage
+        prefetch = getattr(src, "prefetch", None)
+        if prefetch is None:
+            raise RuntimeError("decode_only needs a video footage")
+        prefetch(0)
+        c0 = time.process_time()
+        t0 = time.perf_counter()
+        for k in range(1, self.steps + 1):
+            prefetch(src.frame_index_at(k / 30.0))
+        dt = time.perf_counter() - t0
+        cpu = time.process_time() - c0
+        return self.steps / dt, 1e3 * cpu / self.steps
+
     def breakdown(self) -> dict[str, float]:
-        """ms per step in physics (sim.step), footage fetch (sim.footage_frame: decode on a new footage frame) and
-        render (sim.render with the frame cached: pyramid levels on first use, warp, metadata)."""
+        """ms per step in physics (sim.step), footage decode (a video: `footage.prefetch(index)`, the decode alone;
+        a still: nothing to do) and render (sim.render with the frame decoded: BGR conversion of the region the VAC
+        reads, or of the whole frame with region_render=False, pyramid level, warp, metadata)."""
         sim, cmd = self.sim, self.cmd
         sim.reset(seed=0, pos_ned_m=(0.0, 0.0, -self.z), yaw_rad=self.yaw_rad)
-        acc = {"physics_ms": 0.0, "footage_ms": 0.0, "render_ms": 0.0}
+        acc = {"physics_ms": 0.0, "decode_ms": 0.0, "render_ms": 0.0}
         fetches = 0
         last = -1
         pc = time.perf_counter
+        prefetch = getattr(sim.footage, "prefetch", None)
         t_start = pc()
         for n in self.schedule:
             t0 = pc()
@@ -296,11 +342,14 @@ class Ours:
             t1 = pc()
             acc["physics_ms"] += t1 - t0
             if self.render:
-                index, _pyr = sim.footage_frame(sim.state.time_s)
+                index = sim.footage.frame_index_at(sim.state.time_s)
+                if prefetch is not None:
+                    # the level the last render decoded (footage_levels may read the half-resolution copy)
+                    prefetch(index, getattr(sim, "_source_level_used", 0))
                 t2 = pc()
                 sim.render()
                 t3 = pc()
-                acc["footage_ms"] += t2 - t1
+                acc["decode_ms"] += t2 - t1
                 acc["render_ms"] += t3 - t2
                 fetches += index != last
                 last = index
@@ -400,16 +449,22 @@ def to_markdown(result: dict[str, Any]) -> str:
         f"loadavg (1/5/15 min) at start {tuple(round(v, 2) for v in result['machine'].get('loadavg_start', ()))}, "
         f"at end {tuple(round(v, 2) for v in result['machine']['loadavg'])}",
         "",
-        "| run | median steps/s | wall ms/step | ratio ours/ref (wall) | CPU ms/step | ratio ref/ours (CPU) | vs |",
-        "|---|---:|---:|---:|---:|---:|---|",
+        "| run | median steps/s | wall ms/step | ratio ours/ref (wall) | CPU ms/step | ratio ref/ours (CPU) | vs "
+        "| sim s per wall s | physics steps/s |",
+        "|---|---:|---:|---:|---:|---:|---|---:|---:|",
     ]
     for k, v in med.items():
         ref = _ref_of(k)
         ours = not k.startswith("ref") and ref in med
         r_wall = f"{v / med[ref]:.2f}x" if ours else ""
         r_cpu = f"{cpu[ref] / cpu[k]:.2f}x" if ours else ""
+        # one step = 1/30 s of sim time; the *_250 variants make 250/30 physics steps in it
+        phys = (
+            f"{v * 250.0 / 30.0:.0f}" if "_250" in k else (f"{v:.0f}" if "paper" in k or k == "ref" else "")
+        )
         lines.append(
-            f"| {k} | {v:.1f} | {1e3 / v:.3f} | {r_wall} | {cpu[k]:.3f} | {r_cpu} | {ref if ours else ''} |"
+            f"| {k} | {v:.1f} | {1e3 / v:.3f} | {r_wall} | {cpu[k]:.3f} | {r_cpu} | {ref if ours else ''} "
+            f"| {v / 30.0:.2f} | {phys} |"
         )
     bd = result.get("breakdown_ms_per_step") or {}
     if bd:
@@ -443,7 +498,10 @@ def to_markdown(result: dict[str, Any]) -> str:
 # ---------------------------------------------------------------------------------------------- main
 
 
-VARIANTS = ("phys_250", "phys_paper", "full_250", "full_paper", "ingest_250", "still_250", "still_paper")
+VARIANTS = (
+    "phys_250", "phys_paper", "decode_only", "full_250", "full_paper", "full_250_plain", "full_paper_plain",
+    "full_250_prefetch", "full_paper_prefetch", "ingest_250", "ingest_levels_250", "still_250", "still_paper",
+)  # fmt: skip
 
 
 def _ref_of(name: str) -> str:
@@ -532,16 +590,20 @@ def main() -> int:
         print(f"# SKIP reference: {skip}", file=sys.stderr)
 
     for name in wanted:
-        paper = name.endswith("paper")
-        render = not name.startswith("phys")
+        paper = "paper" in name
+        render = not name.startswith(("phys", "decode"))
         footage = still if name.startswith("still") else clip
         if name.startswith("ingest"):
             try:
-                footage = make_ingest(clip)
+                footage = make_ingest(clip, levels=2 if "levels" in name else 1)
             except ImportError as exc:
                 notes.append(f"ours_{name} skipped: no ingest ({exc})")
                 continue
-        runners[f"ours_{name}"] = Ours(footage, args, paper=paper, render=render)
+        runners[f"ours_{name}"] = Ours(
+            footage, args, paper=paper, render=render, region=not name.endswith("_plain"),
+            prefetch=name.endswith("_prefetch"), decode_only=name == "decode_only",
+            footage_levels="levels" in name,
+        )  # fmt: skip
 
     for r in runners.values():  # warm-up (the reference already did one in --serve)
         if not isinstance(r, Reference):
@@ -559,7 +621,13 @@ def main() -> int:
             line = "  ".join(f"{k}={v[-1]:.1f}" for k, v in samples.items())
             print(f"# round {i + 1}/{args.rounds}: steps/s {line}", file=sys.stderr)
         breakdown = {k: r.ask("breakdown") for k, r in runners.items() if isinstance(r, Reference)}
-        breakdown.update({k: r.breakdown() for k, r in runners.items() if isinstance(r, Ours) and r.render})
+        breakdown.update(  # not for prefetch variants: the breakdown decodes inline, so it would time the same
+            {
+                k: r.breakdown()
+                for k, r in runners.items()
+                if isinstance(r, Ours) and r.render and "prefetch" not in k
+            }
+        )
         quality: dict[str, Any] = {}
         if args.quality_frac:
             # the soft upscaled clip, and a sharp native 4K still (Songdo, ~0.05 m/px -> z_o = 110.2 m at 82.1 deg)

@@ -7,22 +7,44 @@
 
 Free-running: nothing here reads a clock. `render(state)` may be called from one worker thread while another
 thread steps (states are frozen); the footage decoder and pyramid cache belong to the rendering thread.
+
+Speed (bench/results_core.md): over a 4:2:0 video, `render` converts to BGR only the part of the footage frame the
+VAC will read (its footprint's bounding box at the chosen pyramid level, plus a margin) instead of the whole frame,
+and builds the lower pyramid level from that part only; the image is bit-identical to rendering from the fully
+converted frame (tests/test_sim_speed_paths.py). `prefetch=True` also decodes the next footage frame on a
+background thread while the caller steps and renders. `footage_frame` still returns the whole converted frame.
 """
 
 from __future__ import annotations
 
 import math
 import time
+from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
 
-from viva_sitl.camera import CameraParams, LazyPyramid, Renderer, camera_extrinsics, camera_intrinsics
+from viva_sitl.camera import (
+    CameraParams,
+    LazyPyramid,
+    Renderer,
+    RenderResult,
+    camera_extrinsics,
+    camera_intrinsics,
+    footage_to_image_homography,
+)
+from viva_sitl.camera.pyramid import RegionPyramid, level_from_source
 from viva_sitl.config import SimConfig
 from viva_sitl.dynamics import EavCommand, EavParams, EavState, step
 from viva_sitl.footage import FootageSource, open_footage
+from viva_sitl.footage.source import VideoSource
 from viva_sitl.frame import FrameMeta, RenderedFrame
 from viva_sitl.geo import GeoOrigin
+
+# Source pixels (at the rendered level) added around the footprint's bounding box: bilinear reads the next pixel,
+# and OpenCV rounds warp coordinates to 1/32 px.
+REGION_MARGIN_PX = 2
+_W_EPS = 1e-9  # as the renderer: homogeneous w at or below this is a ray at or above the horizon
 
 
 def _tuple3(a: np.ndarray) -> tuple[float, float, float]:
@@ -37,7 +59,17 @@ class Simulator:
         config: SimConfig | None = None,
         footage: str | Path | FootageSource | None = None,
         camera: CameraParams | None = None,
+        *,
+        region_render: bool = True,
+        prefetch: bool = False,
+        footage_levels: bool = False,
     ) -> None:
+        """`region_render`: convert only the part of each video frame the VAC reads (same image, faster);
+        `prefetch`: decode the next footage frame on a background thread (same frames, overlaps decode with the
+        caller's work; one extra thread, ended by `close`); `footage_levels` (with `region_render`, over an
+        ingest-cache footage that has reduced copies): when the VAC renders from pyramid level >= 1, decode the
+        copy of that resolution instead of the full frame (much faster when high up, but NOT the same image: the
+        copy is a separately encoded, lossy video; see tests/test_sim_speed_paths.py for the measured PSNR)."""
         self.config = config or SimConfig()
         if isinstance(footage, str | Path) or footage is None:
             self.footage: FootageSource = open_footage(
@@ -51,6 +83,23 @@ class Simulator:
         self._pyramid_index = -1
         self._pyramid: LazyPyramid | None = None
         self._frame_counter = 0
+        # constant per camera: FrameMeta fields computed once per CameraParams (see _camera_fields)
+        self._fields_camera: CameraParams | None = None
+        self._intrinsics_k: tuple[tuple[float, float, float], ...] = ()
+        self._cam_pos_body_m = (0.0, 0.0, 0.0)
+        self._region: RegionPyramid | None = None
+        self._footage_levels = footage_levels
+        # footage level the last region render decoded (what prefetch decodes next)
+        self._source_level_used = 0
+        self.region_renders = 0  # statistics: renders served by the region path / by the whole frame
+        self.full_renders = 0
+        if region_render and isinstance(self.footage, VideoSource) and not self.camera.has_distortion:
+            w, h = self.footage.frame_size_px
+            self._region = RegionPyramid(w, h)
+        self._prefetcher: ThreadPoolExecutor | None = None
+        self._prefetch_job: Future[None] | None = None
+        if prefetch and isinstance(self.footage, VideoSource) and self.footage.frame_count > 1:
+            self._prefetcher = ThreadPoolExecutor(max_workers=1, thread_name_prefix="viva-sitl-prefetch")
         self.reset(self.config.seed)
 
     # --- geometry ------------------------------------------------------------------
@@ -117,15 +166,124 @@ class Simulator:
             self._pyramid_index = index
         return index, self._pyramid
 
+    def _plan_region(self, s: EavState, region: RegionPyramid) -> tuple[int, int, int, int, int] | None:
+        """(level, x0, y0, x1, y1): the pyramid level the renderer will warp from at `s` and the level-0 region it
+        will read (bounding box of the VAC's corner pixels mapped to the footage, plus REGION_MARGIN_PX at that
+        level, aligned to 2^level, clipped to the frame; empty when the view misses
+        the frame). None when the view is unbounded (horizon in view) or the level cannot be built from a region.
+
+        Repeats the renderer's own homography and level choice (same operations, so the same numbers);
+        `render` checks the level it actually used and falls back to the whole frame if they ever disagree.
+        """
+        geom, cam = self.footage.geometry, self.camera
+        w0, h0 = region.width_px, region.height_px
+        h_f2i = footage_to_image_homography(geom, s.pos_ned_m, s.att_rpy_rad, cam)
+        if (w0, h0) == (geom.width_px, geom.height_px):
+            geom_to_src = np.eye(3)
+        else:
+            geom_to_src = level_from_source(geom.width_px, geom.height_px, w0, h0)
+        h_src2i = h_f2i @ np.linalg.inv(geom_to_src)
+        vac_to_src = np.linalg.inv(h_src2i)
+        vac_to_src /= np.max(np.abs(vac_to_src))
+        level, _ = self.renderer.choose_level(vac_to_src, region.max_level)
+        if not region.exact_level(level):
+            return None
+        wv, hv = cam.width_px - 1.0, cam.height_px - 1.0
+        corners = np.array([[0.0, 0.0, 1.0], [wv, 0.0, 1.0], [wv, hv, 1.0], [0.0, hv, 1.0]]) @ vac_to_src.T
+        if np.any(corners[:, 2] <= _W_EPS) or not np.all(np.isfinite(corners)):
+            return None  # the footprint is unbounded: the whole frame may be read
+        # level-0 pixel -> level-L pixel (edges aligned): u_L = (u_0 + 0.5) / 2^L - 0.5
+        scale = 1.0 / (1 << level)
+        u = (corners[:, 0] / corners[:, 2] + 0.5) * scale - 0.5
+        v = (corners[:, 1] / corners[:, 2] + 0.5) * scale - 0.5
+        lw, lh = region.sizes_px[level]
+        j0 = max(0, min(lw, math.floor(float(u.min())) - REGION_MARGIN_PX))
+        j1 = max(0, min(lw, math.floor(float(u.max())) + 1 + REGION_MARGIN_PX))
+        i0 = max(0, min(lh, math.floor(float(v.min())) - REGION_MARGIN_PX))
+        i1 = max(0, min(lh, math.floor(float(v.max())) + 1 + REGION_MARGIN_PX))
+        return level, j0 << level, i0 << level, min(w0, j1 << level), min(h0, i1 << level)
+
+    def _region_pyramid(self, index: int, s: EavState) -> tuple[RegionPyramid, int] | None:
+        """The region pyramid filled for rendering footage frame `index` at `s`, and its level; None: use the whole
+        frame."""
+        region = self._region
+        if region is None or not isinstance(self.footage, VideoSource):
+            return None
+        if self._pyramid_index == index and self._pyramid is not None:
+            return None  # the whole frame is already converted (footage_frame was called): reuse it
+        plan = self._plan_region(s, region)
+        if plan is None:
+            return None
+        level, x0, y0, x1, y1 = plan
+        src_level = self._source_level(level, region)
+        # align to the 2x2 chroma grid of the decoded frame (level src_level) and to 2^level
+        a = max(1 << level, 2 << src_level)
+        x0, y0 = x0 // a * a, y0 // a * a
+        x1, y1 = min(region.width_px, -(-x1 // a) * a), min(region.height_px, -(-y1 // a) * a)
+        key = (index, level, src_level, x0, y0, x1, y1)
+        if region.key == key:
+            return region, level
+        region.clear()
+        if x1 > x0 and y1 > y0:
+            img = self.footage.frame_region(
+                index, x0 >> src_level, y0 >> src_level, x1 >> src_level, y1 >> src_level, level=src_level
+            )
+            if img is None:  # not a 4:2:0 stream: never try again
+                self._region = None
+                return None
+            region.fill(level, x0, y0, img, source_level=src_level)
+        region.key = key
+        self._source_level_used = src_level
+        return region, level
+
+    def _source_level(self, level: int, region: RegionPyramid) -> int:
+        """The footage level to decode for pyramid level `level`: 0 (the source), or with `footage_levels` the
+        deepest ingest-cache copy <= level whose size is that pyramid level's."""
+        if not self._footage_levels or level == 0 or not isinstance(self.footage, VideoSource):
+            return 0
+        for k in range(min(level, self.footage.level_count - 1), 0, -1):
+            if self.footage.level_size_px(k) == region.sizes_px[k]:
+                return k
+        return 0
+
+    def _prefetch_next(self, index: int) -> None:
+        """Start decoding the footage frame after `index` on the prefetch thread (one job at a time)."""
+        if self._prefetcher is None or not isinstance(self.footage, VideoSource):
+            return
+        if self._prefetch_job is not None and not self._prefetch_job.done():
+            return
+        self._prefetch_job = self._prefetcher.submit(
+            self.footage.prefetch, index + 1, self._source_level_used
+        )
+
+    def _render_image(self, s: EavState) -> tuple[int, RenderResult]:
+        index = self.footage.frame_index_at(s.time_s)
+        planned = self._region_pyramid(index, s)
+        if planned is not None:
+            region, level = planned
+            rng_state = self.camera_rng.bit_generator.state
+            result = self.renderer.render(region, s.pos_ned_m, s.att_rpy_rad, s.vel_ned_m_s, self.camera_rng)
+            if result.coverage == 0.0 or result.pyramid_level == level:
+                self.region_renders += 1
+                return index, result
+            self.camera_rng.bit_generator.state = rng_state  # the same noise on the whole-frame render below
+        index, pyramid = self.footage_frame(s.time_s)
+        self.full_renders += 1
+        return index, self.renderer.render(
+            pyramid, s.pos_ned_m, s.att_rpy_rad, s.vel_ned_m_s, self.camera_rng
+        )
+
     def render(self, state: EavState | None = None, wall_time_s: float | None = None) -> RenderedFrame:
         """Render the VAC view at `state` (default: the current state)."""
         s = self.state if state is None else state
         wall = time.time() if wall_time_s is None else wall_time_s
-        index, pyramid = self.footage_frame(s.time_s)
-        result = self.renderer.render(pyramid, s.pos_ned_m, s.att_rpy_rad, s.vel_ned_m_s, self.camera_rng)
+        index, result = self._render_image(s)
+        self._prefetch_next(index)
         lat, lon, alt = self.geo.ned_to_global(*_tuple3(s.pos_ned_m))
-        k = camera_intrinsics(self.camera)
-        _, pos_bv = camera_extrinsics(self.camera)
+        if self._fields_camera is not self.camera:
+            self._intrinsics_k = tuple(_tuple3(row) for row in camera_intrinsics(self.camera))
+            self._cam_pos_body_m = _tuple3(np.asarray(camera_extrinsics(self.camera)[1]))
+            self._fields_camera = self.camera
         meta = FrameMeta(
             frame_counter=self._frame_counter,
             sim_time_s=s.time_s,
@@ -136,9 +294,9 @@ class Simulator:
             footage_frame_index=index,
             width_px=self.camera.width_px,
             height_px=self.camera.height_px,
-            intrinsics_k=tuple(tuple(float(v) for v in row) for row in k),
-            cam_rot_body=tuple(tuple(float(v) for v in row) for row in result.cam_rot_body),  # gimbal-aware
-            cam_pos_body_m=_tuple3(np.asarray(pos_bv)),
+            intrinsics_k=self._intrinsics_k,
+            cam_rot_body=tuple(_tuple3(row) for row in result.cam_rot_body),  # gimbal-aware
+            cam_pos_body_m=self._cam_pos_body_m,
             coverage=float(result.coverage),
             lat_deg=lat,
             lon_deg=lon,
@@ -148,6 +306,9 @@ class Simulator:
         return RenderedFrame(result.image_bgr, meta)
 
     def close(self) -> None:
+        if self._prefetcher is not None:
+            self._prefetcher.shutdown(wait=True, cancel_futures=True)  # joins the prefetch thread
+            self._prefetcher = None
         self.footage.close()
 
     def __enter__(self) -> Simulator:

@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import threading
 import time
+from collections.abc import Sequence
+from typing import overload
 
 import cv2
 import numpy as np
@@ -104,3 +106,111 @@ class LazyPyramid:
 
     def __len__(self) -> int:
         return self.max_level + 1
+
+
+class RegionPyramid(Sequence[U8]):
+    """Full-size pyramid levels of one footage frame of which only one region of one level is filled in.
+
+    For a renderer that is known to read only that region of that level (`viva_sitl.sim.Simulator` plans it from
+    the VAC footprint): the level-0 frame then never has to be converted, nor its lower levels built, in full.
+    It is a sequence of levels (`len`, `[l]`) as `Renderer.render` accepts. Level `filled_level` is a reused
+    full-size buffer whose region holds exactly what `LazyPyramid(frame).level(filled_level)` holds there (the
+    region is aligned to 2^level level-0 pixels and every halving is exact, so box averages of the region equal those
+    of the whole frame); outside it, and at every other level, the content is unspecified (zero or stale): read
+    `filled_level` and `region_px` before trusting a pixel.
+    """
+
+    def __init__(self, width_px: int, height_px: int, channels: int = 3) -> None:
+        if width_px <= 0 or height_px <= 0 or channels <= 0:
+            raise ValueError(f"region pyramid size must be positive, got {width_px}x{height_px}x{channels}")
+        self.max_level = max_pyramid_level(width_px, height_px)
+        self.channels = channels
+        self.sizes_px: list[tuple[int, int]] = [(width_px, height_px)]
+        for _ in range(self.max_level):
+            w, h = self.sizes_px[-1]
+            self.sizes_px.append(((w + 1) // 2, (h + 1) // 2))
+        zero = np.zeros((1, 1, channels), np.uint8)
+        # levels nobody filled: zero-strided stand-ins of the right shape (no memory; the renderer reads level 0's
+        # shape even when it warps from another level)
+        self._stubs: list[U8] = [np.broadcast_to(zero, (h, w, channels)) for w, h in self.sizes_px]
+        self._buffers: dict[int, U8] = {}
+        self.filled_level = -1
+        # level-0 x0, y0, x1, y1 of the filled region
+        self.region_px: tuple[int, int, int, int] = (0, 0, 0, 0)
+        self.key: object = None  # the caller's tag of what is filled (e.g. (frame index, level, region))
+
+    @property
+    def width_px(self) -> int:
+        return self.sizes_px[0][0]
+
+    @property
+    def height_px(self) -> int:
+        return self.sizes_px[0][1]
+
+    def exact_level(self, level: int) -> bool:
+        """True when `level` can be filled from a region (the frame's size is a multiple of 2^level)."""
+        step = 1 << max(level, 0)
+        return 0 <= level <= self.max_level and self.width_px % step == 0 and self.height_px % step == 0
+
+    def clear(self) -> None:
+        """Forget the filled region (every level reads as unspecified)."""
+        self.filled_level, self.region_px, self.key = -1, (0, 0, 0, 0), None
+
+    def fill(self, level: int, x0: int, y0: int, region_bgr: U8, source_level: int = 0) -> None:
+        """Fill level `level` from `region_bgr`: pixels of level `source_level` (<= level) covering level-0 pixels
+        [y0:y1, x0:x1] (x1 = x0 + w * 2^source_level, or the frame's edge; likewise y1).
+
+        x0, y0, x1 and y1 must be multiples of 2^level (x1, y1 may instead end at the frame's edge), and the frame's
+        size a multiple of 2^level (`exact_level`), so that each halving of the region is exact. `source_level` > 0:
+        the region comes from a reduced copy of the frame (e.g. the ingest cache's half-resolution video) of the
+        size of that level.
+        """
+        check_image(region_bgr)
+        if not 0 <= source_level <= level:
+            raise ValueError(f"source level {source_level} must be in 0..{level}")
+        h, w = region_bgr.shape[:2]
+        h, w = h << source_level, w << source_level
+        step = 1 << level
+        if not self.exact_level(level):
+            raise ValueError(
+                f"level {level} of a {self.width_px}x{self.height_px} frame is not an exact halving"
+            )
+        if region_bgr.shape[2:] != (self.channels,):
+            raise ValueError(f"region must have {self.channels} channels, got shape {region_bgr.shape}")
+        x1, y1 = x0 + w, y0 + h
+        slack = (1 << source_level) - 1  # a reduced copy's last pixel may stand for fewer level-0 pixels
+        x1 = self.width_px if x1 - slack <= self.width_px < x1 else x1
+        y1 = self.height_px if y1 - slack <= self.height_px < y1 else y1
+        if x0 < 0 or y0 < 0 or x1 > self.width_px or y1 > self.height_px or x0 % step or y0 % step:
+            raise ValueError(f"region ({x0}, {y0})-({x1}, {y1}) is not aligned to {step} px inside the frame")
+        if (x1 % step and x1 != self.width_px) or (y1 % step and y1 != self.height_px):
+            raise ValueError(f"region ({x0}, {y0})-({x1}, {y1}) does not end on a {step} px boundary")
+        img = region_bgr
+        for _ in range(level - source_level):
+            img = half_size(img)
+        buf = self._buffers.get(level)
+        if buf is None:
+            lw, lh = self.sizes_px[level]
+            buf = self._buffers[level] = np.zeros((lh, lw, self.channels), np.uint8)
+        lx, ly = x0 >> level, y0 >> level
+        buf[ly : ly + img.shape[0], lx : lx + img.shape[1]] = img
+        self.filled_level = level
+        self.region_px = (x0, y0, x1, y1)
+
+    def __len__(self) -> int:
+        return self.max_level + 1
+
+    @overload
+    def __getitem__(self, level: int) -> U8: ...
+
+    @overload
+    def __getitem__(self, level: slice) -> list[U8]: ...
+
+    def __getitem__(self, level: int | slice) -> U8 | list[U8]:
+        if isinstance(level, slice):
+            return [self[i] for i in range(*level.indices(len(self)))]
+        if not 0 <= level <= self.max_level:
+            raise IndexError(f"pyramid level {level} out of 0..{self.max_level}")
+        if level == self.filled_level:
+            return self._buffers[level]
+        return self._stubs[level]

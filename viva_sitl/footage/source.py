@@ -33,6 +33,8 @@ log = logging.getLogger(__name__)
 SEEK_AHEAD_FRAMES = 48
 # Widest frame converted to BGR by swscale; wider ones go through OpenCV (see to_bgr).
 SWSCALE_MAX_WIDTH_PX = 4096
+# Decoded (YUV) frames a decoder keeps: the current one and a prefetched next one, plus one spare.
+RECENT_RAW_FRAMES = 3
 
 
 def _readonly(img: NDArray[np.uint8]) -> NDArray[np.uint8]:
@@ -189,8 +191,14 @@ class _Decoder:
         self.path = path
         self._iter: Any = None
         self._last_index = -1
-        self._last: NDArray[np.uint8] | None = None
-        self._last_converted = True
+        # the last RECENT_RAW_FRAMES decoded frames (YUV) by index, newest last: a prefetch of frame i + 1 must not
+        # make a second request for frame i seek back
+        self._recent: dict[int, av.VideoFrame] = {}
+        # the last frame decoded (returned past the end of the stream)
+        self._newest: av.VideoFrame | None = None
+        self._last: NDArray[np.uint8] | None = None  # the one converted frame, see `_last_bgr`
+        self._last_bgr: tuple[int, bool] = (-1, True)  # (index, converted to BGR) of `_last`
+        self._scratch: list[av.VideoFrame] = []  # crop_to_bgr's reusable frame (one size at a time)
         self.seeks = 0  # statistics (tests, bench)
         self.decoded = 0
 
@@ -235,8 +243,30 @@ class _Decoder:
         return f
 
     def get(self, index: int, convert: bool = True) -> NDArray[np.uint8]:
-        if index == self._last_index and self._last is not None and convert == self._last_converted:
+        raw = self.get_raw(index)
+        key = (self._key_of(raw), convert)
+        if self._last is not None and self._last_bgr == key:
             return self._last
+        # convert=False: planar YUV (bench)
+        conv = to_bgr(raw) if convert else np.asarray(raw.to_ndarray(), dtype=np.uint8)
+        self._last, self._last_bgr = _readonly(conv), key
+        return self._last
+
+    def get_region(self, index: int, x0: int, y0: int, x1: int, y1: int) -> NDArray[np.uint8] | None:
+        """`get(index)[y0:y1, x0:x1]`, bit-identical, converting only that region (None: not a 4:2:0 frame)."""
+        raw = self.get_raw(index)
+        if self._last is not None and self._last_bgr == (self._key_of(raw), True):
+            return self._last[y0:y1, x0:x1]  # already converted in full
+        return crop_to_bgr(raw, x0, y0, x1, y1, self._scratch)
+
+    def _key_of(self, raw: av.VideoFrame) -> int:
+        return next((i for i, f in self._recent.items() if f is raw), -1)
+
+    def get_raw(self, index: int) -> av.VideoFrame:
+        """The decoded frame `index` (YUV, as the codec outputs it; the last one at the end of the stream)."""
+        cached = self._recent.get(index)
+        if cached is not None:
+            return cached
         restarted = False
         if self._iter is None or index <= self._last_index or index > self._last_index + SEEK_AHEAD_FRAMES:
             self._restart(index)
@@ -257,19 +287,22 @@ class _Decoder:
             if i >= index:
                 break
         if frame is None:
-            if self._last is not None:
-                return self._last
+            if self._newest is not None:
+                return self._newest
             raise FootageError(f"{self.path}: no frame could be decoded (corrupt or empty video)")
         if self._last_index != index:
             log.debug("%s: asked for frame %d, got %d (end of stream)", self.path, index, self._last_index)
-        raw = (
-            to_bgr(frame) if convert else np.asarray(frame.to_ndarray(), dtype=np.uint8)
-        )  # raw: planar YUV (bench)
-        self._last, self._last_converted = _readonly(raw), convert
-        return self._last
+        self._newest = frame
+        self._recent[self._last_index] = frame
+        while len(self._recent) > RECENT_RAW_FRAMES:
+            del self._recent[next(iter(self._recent))]
+        return frame
 
     def close(self) -> None:
         self._iter = None
+        self._recent.clear()
+        self._newest = self._last = None
+        self._scratch.clear()
         self.container.close()
 
 
@@ -289,6 +322,60 @@ def to_bgr(frame: av.VideoFrame) -> NDArray[np.uint8]:
         planes = frame.to_ndarray()  # (h * 3 / 2, w) I420, strides removed
         return np.asarray(cv2.cvtColor(planes, cv2.COLOR_YUV2BGR_I420), dtype=np.uint8)
     return np.asarray(frame.to_ndarray(format="bgr24"), dtype=np.uint8)
+
+
+_CROP_FORMATS = ("yuv420p", "yuvj420p")
+
+
+def _plane_views(frame: av.VideoFrame) -> list[NDArray[np.uint8]]:
+    """(h, w) uint8 views of the planes of a planar 8-bit frame (no copy; line padding cut off)."""
+    return [
+        np.frombuffer(memoryview(p), np.uint8).reshape(p.height, p.line_size)[:, : p.width]
+        for p in frame.planes
+    ]
+
+
+def crop_to_bgr(
+    frame: av.VideoFrame, x0: int, y0: int, x1: int, y1: int, scratch: list[av.VideoFrame] | None = None
+) -> NDArray[np.uint8] | None:
+    """`to_bgr(frame)[y0:y1, x0:x1]`, bit-identical, converting only that region; None for a frame that is not
+    4:2:0 8-bit (yuv420p/yuvj420p) with even size. x0, y0 must be even; x1, y1 even or the frame's width/height.
+
+    Why: the VAC reads a small part of a 4K frame when low (a 640x480 view at z = 50 m, yaw 30 deg, of 471 m
+    footage reads 512x474 px, 3 % of it), and converting all of it costs 2-4.5 ms here. The 4:2:0 planes are cropped with numpy views at
+    an even offset (chroma stays on its 2x2 grid) and converted by the same converter as `to_bgr` (swscale via a
+    reusable frame, or OpenCV above SWSCALE_MAX_WIDTH_PX), both of which convert each pixel from its own Y and its
+    2x2 block's U, V, so the crop equals the crop of the full conversion (tests/test_sim_speed_paths.py).
+    `scratch`: a list the caller keeps between calls (holds one reusable frame).
+    """
+    w, h = frame.width, frame.height
+    if frame.format.name not in _CROP_FORMATS or w % 2 or h % 2:
+        return None
+    if not (0 <= x0 < x1 <= w and 0 <= y0 < y1 <= h) or x0 % 2 or y0 % 2 or x1 % 2 or y1 % 2:
+        raise ValueError(f"crop ({x0}, {y0})-({x1}, {y1}) must be even and inside the {w}x{h} frame")
+    cw, ch = x1 - x0, y1 - y0
+    yp, up, vp = _plane_views(frame)
+    ys, cs = np.s_[y0:y1, x0:x1], np.s_[y0 // 2 : y1 // 2, x0 // 2 : x1 // 2]
+    if w > SWSCALE_MAX_WIDTH_PX:  # to_bgr converts these with OpenCV: same here, on a packed I420 crop
+        buf = np.empty((ch * 3 // 2, cw), np.uint8)
+        buf[:ch] = yp[ys]
+        flat = buf.reshape(-1)
+        n = (ch // 2) * (cw // 2)
+        flat[ch * cw : ch * cw + n] = up[cs].reshape(-1)
+        flat[ch * cw + n :] = vp[cs].reshape(-1)
+        return np.asarray(cv2.cvtColor(buf, cv2.COLOR_YUV2BGR_I420), dtype=np.uint8)
+    box = scratch if scratch is not None else []
+    small = box[0] if box else None
+    if small is None or (small.width, small.height, small.format.name) != (cw, ch, frame.format.name):
+        small = av.VideoFrame(cw, ch, frame.format.name)
+        box[:] = [small]
+    # the same conversion matrix and range as the decoded frame
+    small.colorspace, small.color_range = frame.colorspace, frame.color_range
+    dy, du, dv = _plane_views(small)
+    dy[...] = yp[ys]
+    du[...] = up[cs]
+    dv[...] = vp[cs]
+    return np.asarray(small.to_ndarray(format="bgr24"), dtype=np.uint8)
 
 
 class VideoSource(FootageSource):
@@ -324,6 +411,11 @@ class VideoSource(FootageSource):
         return self._decoder.frame_count
 
     @property
+    def frame_size_px(self) -> tuple[int, int]:
+        """(width, height) of the decoded level-0 frames."""
+        return (self._decoder.width, self._decoder.height)
+
+    @property
     def decoder_stats(self) -> dict[str, int]:
         return {"seeks": self._decoder.seeks, "decoded": self._decoder.decoded}
 
@@ -344,6 +436,44 @@ class VideoSource(FootageSource):
             if dec is None:
                 dec = self._levels[level] = _Decoder(Path(self.metadata.levels[level - 1]))
             return dec.get(index)
+
+    def frame_region(
+        self, index: int, x0: int, y0: int, x1: int, y1: int, level: int = 0
+    ) -> NDArray[np.uint8] | None:
+        """`frame(index, level)[y0:y1, x0:x1]` (bit-identical), converting only that region of the decoded frame.
+
+        None when the stream is not 4:2:0 8-bit with an even size (use `frame`). x0, y0 even; x1, y1 even or the
+        frame's width/height. The whole frame is still decoded (H.264 cannot decode a region).
+        """
+        index = int(index) % self.frame_count
+        with self._lock:
+            return self._level_decoder(level).get_region(index, x0, y0, x1, y1)
+
+    def level_size_px(self, level: int) -> tuple[int, int] | None:
+        """(width, height) of the ingest cache's level `level` copy (level 0: the source); None without one."""
+        if level < 0 or level > len(self.metadata.levels):
+            return None
+        with self._lock:
+            dec = self._level_decoder(level)
+            return (dec.width, dec.height)
+
+    def _level_decoder(self, level: int) -> _Decoder:
+        """The decoder of level `level` (0 or beyond the copies: the source), opened on first use. Holds the lock."""
+        if self._closed:
+            raise FootageError(f"footage {self.metadata.name!r} is closed")
+        if level <= 0 or level > len(self.metadata.levels):
+            return self._decoder
+        dec = self._levels.get(level)
+        if dec is None:
+            dec = self._levels[level] = _Decoder(Path(self.metadata.levels[level - 1]))
+        return dec
+
+    def prefetch(self, index: int, level: int = 0) -> None:
+        """Decode frame `index` (no conversion) so that a later `frame`/`frame_region` of it returns at once."""
+        index = int(index) % self.frame_count
+        with self._lock:
+            if not self._closed:
+                self._level_decoder(level).get_raw(index)
 
     def annotations(self, index: int) -> list[Annotation]:
         return self._annotations.get(int(index) % self.frame_count)
