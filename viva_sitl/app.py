@@ -195,7 +195,13 @@ class SitlApp:
             "skipped_physics_steps": self.pacer.skipped_steps,
         }
         if self.scheduler is not None:
-            stats["render"] = self.scheduler.stats()
+            render = self.scheduler.stats()
+            stats["render"] = render
+            if self.video is not None:
+                # frames the stream should have carried but did not: render ticks skipped + pipeline queue drops
+                due = render["ticks"] + render["late_skipped"]
+                lost = render["late_skipped"] + self.video.stats()["dropped"]
+                stats["frames_lost_pct"] = round(100.0 * lost / due, 3) if due else 0.0
         if self.video is not None:
             stats["video"] = self.video.stats()
         stats["mavlink"] = self.endpoint.stats
