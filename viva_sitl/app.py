@@ -198,12 +198,12 @@ class SitlApp:
             render = self.scheduler.stats()
             stats["render"] = render
             if self.video is not None:
+                video = self.video.stats()
+                stats["video"] = video
                 # frames the stream should have carried but did not: render ticks skipped + pipeline queue drops
                 due = render["ticks"] + render["late_skipped"]
-                lost = render["late_skipped"] + self.video.stats()["dropped"]
+                lost = render["late_skipped"] + video["dropped"]
                 stats["frames_lost_pct"] = round(100.0 * lost / due, 3) if due else 0.0
-        if self.video is not None:
-            stats["video"] = self.video.stats()
         stats["mavlink"] = self.endpoint.stats
         print(f"viva-sitl stopped: {json.dumps(stats, default=str)}", file=sys.stderr, flush=True)
 

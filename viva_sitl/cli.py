@@ -10,6 +10,7 @@ import sys
 from pathlib import Path
 
 from viva_sitl import __version__
+from viva_sitl.cliargs import positive_float
 
 
 def _pose(text: str) -> tuple[float, float, float, float, float, float]:
@@ -24,16 +25,6 @@ def _pose(text: str) -> tuple[float, float, float, float, float, float]:
             f"--pose needs 6 finite numbers north,east,alt,roll,pitch,yaw; got {text!r}"
         )
     return values  # type: ignore[return-value]
-
-
-def _positive(text: str) -> float:
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
-    if not (v > 0 and math.isfinite(v)):
-        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}")
-    return v
 
 
 def _port(text: str) -> int:
@@ -62,9 +53,9 @@ def build_parser() -> argparse.ArgumentParser:
         "--footage", help="catalog name (synthetic, interchange, songdo-00003, ...) or a video/image path"
     )
     run.add_argument("--config", help="TOML config file (see configs/default.toml)")
-    run.add_argument("--speed", type=_positive, help="sim seconds per wall second (default 1)")
+    run.add_argument("--speed", type=positive_float, help="sim seconds per wall second (default 1)")
     run.add_argument("--seed", type=int, help="random seed (disturbances, sensor noise)")
-    run.add_argument("--duration", type=_positive, help="stop after this many wall seconds")
+    run.add_argument("--duration", type=positive_float, help="stop after this many wall seconds")
     run.add_argument("--instance", type=int, help="offset every port and the sysid, as PX4 SITL -i N")
     run.add_argument("--listen", help="address to bind (default 127.0.0.1)")
     run.add_argument("--api-port", type=_port, help="remote API/offboard port (default 14540+instance)")

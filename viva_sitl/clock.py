@@ -50,6 +50,3 @@ class RealTimePacer:
     def wall_until_next_step_s(self) -> float:
         next_wall = self._wall0 + (self._steps_done + 1) * self.dt_s / self.speed
         return max(0.0, next_wall - self.wall_clock())
-
-    def sim_to_wall_s(self, sim_s: float) -> float:
-        return sim_s / self.speed

@@ -3,10 +3,10 @@
 from __future__ import annotations
 
 import argparse
-import math
 import sys
 from pathlib import Path
 
+from viva_sitl.cliargs import positive_float
 from viva_sitl.footage.catalog import cached_record_files, download_catalog
 from viva_sitl.footage.errors import FootageError
 from viva_sitl.footage.ingest import ingest
@@ -20,16 +20,6 @@ from viva_sitl.footage.metadata import (
     load_metadata_file,
 )
 from viva_sitl.footage.paths import default_cache_dir, default_config_dir, default_shared_dir
-
-
-def _positive(text: str) -> float:
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
-    if not (v > 0 and math.isfinite(v)):
-        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}")
-    return v
 
 
 def _human(n: int | None) -> str:
@@ -57,9 +47,9 @@ def build_parser() -> argparse.ArgumentParser:
     sub.add_parser("list", parents=[common], help="catalog entries: name, kind, size, available locally?")
     info = sub.add_parser("info", parents=[common], help="metadata and geometry of a footage (name or path)")
     info.add_argument("footage", help="catalog name or path")
-    info.add_argument("--altitude", type=_positive, help="override the recording altitude (m)")
-    info.add_argument("--hfov", type=_positive, help="override the recording horizontal FoV (deg)")
-    info.add_argument("--gsd", type=_positive, help="override the ground sample distance (m/px)")
+    info.add_argument("--altitude", type=positive_float, help="override the recording altitude (m)")
+    info.add_argument("--hfov", type=positive_float, help="override the recording horizontal FoV (deg)")
+    info.add_argument("--gsd", type=positive_float, help="override the ground sample distance (m/px)")
     get = sub.add_parser(
         "get", parents=[common], help="download a remote catalog (ViVa-SAFELAND from Zenodo)"
     )
@@ -72,7 +62,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--only", action="append", default=[], metavar="GLOB", help="file name pattern (repeatable)"
     )
     get.add_argument("--retries", type=int, default=3, help="resume attempts per file after a cut connection")
-    get.add_argument("--timeout", type=_positive, default=30.0, help="socket timeout, s")
+    get.add_argument("--timeout", type=positive_float, default=30.0, help="socket timeout, s")
     get.add_argument("--no-progress", action="store_true", help="no progress bar")
     ing = sub.add_parser(
         "ingest", parents=[common], help="transcode a heavy video into a fast-decoding cache"

@@ -97,6 +97,14 @@ def _x264_options(preset: str, gop: int, bitrate_kbps: int, threads: int) -> dic
 END_OF_FRAME_AUD = b"\x00\x00\x00\x01\x09\xf0"
 
 
+def _open_rtp(host: str, port: int, label: str) -> av.container.OutputContainer:
+    """FFmpeg's RTP muxer to host:port; a ValueError naming the output when it cannot be opened."""
+    try:
+        return av.open(f"rtp://{host}:{port}", mode="w", format="rtp")
+    except (av.FFmpegError, OSError) as exc:
+        raise ValueError(f"{label}: cannot open rtp://{host}:{port}: {exc}") from None
+
+
 class H264RtpOutput:
     """H.264 (libx264, zero latency, no B-frames, in-band SPS/PPS) over RTP to host:port, payload 96, plus its SDP.
 
@@ -133,10 +141,7 @@ class H264RtpOutput:
     def open(self) -> None:
         if self.sdp_path is not None:
             self.sdp_path = write_sdp(self.sdp_path, h264_sdp(self.host, self.port, self.fps))
-        try:
-            container = av.open(f"rtp://{self.host}:{self.port}", mode="w", format="rtp")
-        except (av.FFmpegError, OSError) as exc:
-            raise ValueError(f"H.264 RTP: cannot open rtp://{self.host}:{self.port}: {exc}") from None
+        container = _open_rtp(self.host, self.port, "H.264 RTP")
         stream = container.add_stream("libx264", rate=self.fps)
         stream.width, stream.height, stream.pix_fmt = self.width, self.height, "yuv420p"
         stream.codec_context.time_base = self._clock.time_base
@@ -216,10 +221,7 @@ class MjpegRtpOutput:
     def open(self) -> None:
         if self.sdp_path is not None:
             self.sdp_path = write_sdp(self.sdp_path, jpeg_sdp(self.host, self.port, self.fps))
-        try:
-            container = av.open(f"rtp://{self.host}:{self.port}", mode="w", format="rtp")
-        except (av.FFmpegError, OSError) as exc:
-            raise ValueError(f"MJPEG RTP: cannot open rtp://{self.host}:{self.port}: {exc}") from None
+        container = _open_rtp(self.host, self.port, "MJPEG RTP")
         stream = container.add_stream("mjpeg", rate=self.fps)
         # the RTP muxer takes the RFC 2435 type from the stream's pixel format: yuvj420p -> type 1 (4:2:0)
         stream.width, stream.height, stream.pix_fmt = self.width, self.height, "yuvj420p"
