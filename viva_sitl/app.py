@@ -22,7 +22,7 @@ from pathlib import Path
 import cv2
 
 from viva_sitl.autopilot import Autopilot, ParamStore
-from viva_sitl.clock import RealTimePacer
+from viva_sitl.clock import RealTimePacer, run_paced
 from viva_sitl.config import SimConfig
 from viva_sitl.dynamics import EavState
 from viva_sitl.frame import RenderedFrame
@@ -124,22 +124,16 @@ class SitlApp:
         return CaptureResult(ok=ok, path=str(path.resolve()), meta=frame.meta)
 
     # --- loops ---------------------------------------------------------------------------
-    async def _physics_loop(self) -> None:
-        sim, ap, pacer = self.sim, self.autopilot, self.pacer
-        pacer.start()
-        while True:
-            n = pacer.steps_due()
-            for _ in range(n):
-                cmd = ap.update(sim.state.time_s, sim.state)
-                sim.step(cmd)
-            if n:
-                pacer.mark_done(n)
-                self.state_wall_time_s = time.time()
-                new_params = ap.eav_params()
-                if new_params != sim.params:
-                    sim.set_params(new_params)
-                    pacer.dt_s = new_params.dt_s
-            await asyncio.sleep(max(0.0005, pacer.wall_until_next_step_s()))
+    def _step_once(self) -> None:
+        state = self.sim.state
+        self.sim.step(self.autopilot.update(state.time_s, state))
+
+    def _after_batch(self) -> None:
+        self.state_wall_time_s = time.time()
+        new_params = self.autopilot.eav_params()  # cached on the parameter revision: cheap
+        if new_params != self.sim.params:
+            self.sim.set_params(new_params)
+            self.pacer.dt_s = new_params.dt_s
 
     def stop(self) -> None:
         self._stopping.set()
@@ -152,7 +146,9 @@ class SitlApp:
         if self.video is not None and self.scheduler is not None:
             self.video.start()
             self.scheduler.start()
-        self._physics_task = asyncio.create_task(self._physics_loop(), name="viva-physics")
+        self._physics_task = asyncio.create_task(
+            run_paced(self.pacer, self._step_once, self._after_batch), name="viva-physics"
+        )
         if ready:
             self._print_ready()
         try:

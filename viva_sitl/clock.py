@@ -6,6 +6,7 @@
 
 from __future__ import annotations
 
+import asyncio
 import math
 import time
 from collections.abc import Callable
@@ -50,3 +51,21 @@ class RealTimePacer:
     def wall_until_next_step_s(self) -> float:
         next_wall = self._wall0 + (self._steps_done + 1) * self.dt_s / self.speed
         return max(0.0, next_wall - self.wall_clock())
+
+
+async def run_paced(
+    pacer: RealTimePacer, step_once: Callable[[], None], after_batch: Callable[[], None]
+) -> None:
+    """The physics task of every vehicle loop: run the steps that are due, then `after_batch`, then sleep.
+
+    Runs until cancelled. Late steps are caught up in whole steps (bounded by the pacer), never skipped silently.
+    """
+    pacer.start()
+    while True:
+        n = pacer.steps_due()
+        for _ in range(n):
+            step_once()
+        if n:
+            pacer.mark_done(n)
+            after_batch()
+        await asyncio.sleep(max(0.0005, pacer.wall_until_next_step_s()))

@@ -31,7 +31,7 @@ import numpy as np
 from pymavlink.dialects.v20 import common as mavlink2
 
 from viva_sitl.autopilot import Autopilot, ParamStore
-from viva_sitl.clock import RealTimePacer
+from viva_sitl.clock import RealTimePacer, run_paced
 from viva_sitl.dynamics import EavParams, EavState, step
 from viva_sitl.geo import GeoOrigin
 from viva_sitl.mavlink.base import MavMessage
@@ -95,22 +95,14 @@ class MinimalVehicle:
         self.state = step(self.state, cmd, self._params, self._rng)
         self.steps += 1
 
-    async def _run(self) -> None:
-        self.pacer.start()
-        while True:
-            n = self.pacer.steps_due()
-            for _ in range(n):
-                self.step_once()
-            if n:
-                self.pacer.mark_done(n)
-                new = self.autopilot.eav_params()
-                if new != self._params:
-                    self._params = new
-            await asyncio.sleep(max(0.0005, self.pacer.wall_until_next_step_s()))
+    def _after_batch(self) -> None:
+        self._params = self.autopilot.eav_params()
 
     def start(self) -> None:
         self.step_once()  # one state through the autopilot: home and pre-arm checks are valid from now on
-        self._task = asyncio.get_running_loop().create_task(self._run(), name="minimal-vehicle")
+        self._task = asyncio.get_running_loop().create_task(
+            run_paced(self.pacer, self.step_once, self._after_batch), name="minimal-vehicle"
+        )
 
     async def stop(self) -> None:
         if self._task is not None:
