@@ -41,6 +41,7 @@ class SitlApp:
         self.config = config
         self.sim = Simulator(config)
         self.params = ParamStore()
+        self.params.adopt("MAV_SYS_ID", config.mavlink.system_id)  # as PX4 SITL -i N
         for name, value in config.params:
             self.params.set(name, value)
         self.autopilot = Autopilot(self.params, config.physics, inside=self.sim.inside_footage)

@@ -6,7 +6,7 @@
     [camera]   CameraParams fields                             -> viva_sitl.camera.CameraParams
     [mavlink]  MavlinkConfig fields                            -> viva_sitl.mavlink.MavlinkConfig
     [video]    VideoConfig fields                              -> viva_sitl.video.VideoConfig
-    [params]   PX4 parameter overrides (name = value)
+    [params]   PX4 parameter overrides (NAME = number), checked against the PX4 parameter set at load
 
 Unknown tables or keys are errors with the exact key named: a typo never silently falls back to a default.
 """
@@ -14,6 +14,7 @@ Unknown tables or keys are errors with the exact key named: a typo never silentl
 from __future__ import annotations
 
 import dataclasses
+import difflib
 import enum
 import math
 import tomllib
@@ -23,6 +24,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, TypeVar
 
+from viva_sitl.autopilot.params import ParamStore
 from viva_sitl.camera import CameraParams
 from viva_sitl.dynamics import EavParams
 from viva_sitl.geo import GeoOrigin
@@ -167,8 +169,26 @@ class SimConfig:
                 raise ConfigError(f"{where}[physics].rate_hz: expected a positive number, got {rate!r}")
             physics["dt_s"] = 1.0 / float(rate)
             merged["physics"] = physics
-        params = data.get("params", {})
-        if not isinstance(params, dict):
-            raise ConfigError(f"{where}[params]: expected a table of NAME = number")
-        merged["params"] = [[str(k), v] for k, v in params.items()]
+        merged["params"] = [list(item) for item in _check_params(data.get("params", {}), where)]
         return build(cls, merged, where)
+
+
+def _check_params(params: Any, where: str) -> list[tuple[str, float]]:
+    """`[params]` NAME = number: every name a parameter the vehicle has, every value one it can hold."""
+    if not isinstance(params, dict):
+        raise ConfigError(f"{where}[params]: expected a table of NAME = number")
+    store = ParamStore()
+    out: list[tuple[str, float]] = []
+    for name, value in params.items():
+        key = f"{where}[params].{name}"
+        if name not in store:
+            close = difflib.get_close_matches(str(name).upper(), store.names(), n=3)
+            hint = f" (did you mean {', '.join(close)}?)" if close else ""
+            raise ConfigError(f"{key}: unknown PX4 parameter{hint}")
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            raise ConfigError(f"{key}: expected a number, got {value!r}")
+        try:
+            out.append((str(name), store.spec(name).check(value)))
+        except ValueError as exc:
+            raise ConfigError(f"{key}: {exc}") from None
+    return out

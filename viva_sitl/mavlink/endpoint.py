@@ -38,6 +38,7 @@ from viva_sitl.mavlink.base import (
 from viva_sitl.mavlink.camera import CameraComponent, is_camera_command
 from viva_sitl.mavlink.codec import DatagramParser, Encoder
 from viva_sitl.mavlink.commands import CommandHandler, CommandRequest
+from viva_sitl.mavlink.ftp import FtpServer
 from viva_sitl.mavlink.mission import MissionLimits, MissionProtocol
 from viva_sitl.mavlink.offboard import (
     Rejected,
@@ -241,6 +242,7 @@ class MavlinkEndpoint:
             vehicle, self, self._statustext, self._request_message, self._set_interval, self._get_interval
         )
         self.params = ParamProtocol(ap.params, self, self._statustext)
+        self.ftp = FtpServer(self)
         limits = MissionLimits(
             self.config.mission_max_items, self.config.mission_retry_s, self.config.mission_max_retries
         )
@@ -265,6 +267,7 @@ class MavlinkEndpoint:
                 lambda _lk, o, m: self.params.handle_request_read(o, m)
             ),
             M.MAVLINK_MSG_ID_PARAM_SET: self._targeted(lambda _lk, o, m: self.params.handle_set(o, m)),
+            M.MAVLINK_MSG_ID_FILE_TRANSFER_PROTOCOL: self._targeted(lambda _lk, o, m: self.ftp.handle(o, m)),
             M.MAVLINK_MSG_ID_MISSION_COUNT: self._targeted(
                 lambda _lk, o, m: self.mission.handle_count(o, m, self._mono())
             ),
@@ -352,6 +355,7 @@ class MavlinkEndpoint:
             loop.create_task(self._heartbeat_loop(), name="mavlink-heartbeat"),
             loop.create_task(self._telemetry_loop(), name="mavlink-telemetry"),
             loop.create_task(self._housekeeping_loop(), name="mavlink-housekeeping"),
+            loop.create_task(self.params.run(), name="mavlink-params"),
         ]
         log.info(
             "MAVLink sysid %d: api %s -> %s, gcs %s -> %s",
