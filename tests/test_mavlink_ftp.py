@@ -146,3 +146,15 @@ def test_short_or_foreign_ftp_messages_are_ignored(
         assert vehicle.call(lambda: vehicle.endpoint.stats["handler_errors"]) == 0
     finally:
         client.close()
+
+
+@pytest.mark.parametrize("msgid", [397, 395])  # COMPONENT_METADATA, COMPONENT_INFORMATION
+def test_component_metadata_requests_get_a_prompt_unsupported(vehicle: VehicleThread, msgid: int) -> None:
+    """QGroundControl asks for the component metadata first; a clean refusal makes it use its built-in PX4 data."""
+    client = MavClient(target=vehicle.api)
+    try:
+        ack = client.command(M.MAV_CMD_REQUEST_MESSAGE, float(msgid), timeout_s=1.0)
+        assert ack is not None, "no COMMAND_ACK"
+        assert ack.command == M.MAV_CMD_REQUEST_MESSAGE and ack.result == M.MAV_RESULT_UNSUPPORTED
+    finally:
+        client.close()
