@@ -162,6 +162,7 @@ def test_param_list_has_every_index_once(client: MavClient, vehicle: VehicleThre
     assert [values[i].param_id for i in range(len(expected))] == expected
     mis = values[expected.index("MIS_TAKEOFF_ALT")]
     assert mis.param_type == M.MAV_PARAM_TYPE_REAL32 and mis.param_value == pytest.approx(2.5)
+    assert vehicle.stats()["param_list_values_sent"] == len(expected)  # each one once, no duplicates
     auto = values[expected.index("SYS_AUTOSTART")]
     assert auto.param_type == M.MAV_PARAM_TYPE_INT32 and _float_as_int(auto.param_value) == 4001
     # paced (20 per 10 ms, as PX4's bursts), not one loop-blocking flood; and still quick

@@ -390,6 +390,8 @@ class MavlinkEndpoint:
         out: dict[str, Any] = asdict(self._stats)
         out["param_sets_accepted"] = self.params.sets_accepted
         out["param_sets_rejected"] = self.params.sets_rejected
+        out["param_list_values_sent"] = self.params.list_values_sent
+        out["ftp_requests"] = self.ftp.requests
         out["mission_uploads_completed"] = self.mission.uploads_completed
         out["mission_uploads_failed"] = self.mission.uploads_failed
         out["command_acks"] = self.commands.acks_sent

@@ -99,11 +99,6 @@ class ParamProtocol:
             del self._streams[next(iter(self._streams))]
         self._wake.set()
 
-    @property
-    def listing(self) -> bool:
-        """True while a PARAM_REQUEST_LIST answer is still streaming."""
-        return bool(self._streams)
-
     def send_burst(self, n: int = LIST_BURST) -> None:
         """Up to `n` PARAM_VALUEs to every peer with a list in progress (run() calls this; tests may too)."""
         count = len(self.store)
