@@ -177,14 +177,16 @@ def test_config_params_apply_at_start_and_mav_sys_id_follows_the_instance(
     sitl_factory: Callable[..., SitlProcess], peer_factory: Callable[[int], MavlinkPeer], tmp_path: Path
 ) -> None:
     cfg = tmp_path / "params.toml"
-    cfg.write_text("[params]\nMC_ROLL_P = 7.0\nCOM_RC_IN_MODE = 2\nMPC_XY_CRUISE = 6.0\n", encoding="utf-8")
+    cfg.write_text("[params]\nMC_ROLL_P = 7.0\nCOM_RC_IN_MODE = 2\nMPC_XY_CRUISE = 25.0\n", encoding="utf-8")
     sitl = sitl_factory(instance=1, extra_args=["--config", str(cfg)])
     peer = peer_factory(sitl.ports.gcs)
     hb = peer.wait_autopilot()
     assert hb.get_srcSystem() == 2
     target = (2, 1)
     assert peer.get_param("MC_ROLL_P", target=target) == pytest.approx(7.0)
-    assert peer.get_param("MPC_XY_CRUISE", target=target) == pytest.approx(6.0)
+    # above PX4's documented max (20): stored and reported as set, with one warning at start-up
+    assert peer.get_param("MPC_XY_CRUISE", target=target) == pytest.approx(25.0)
+    assert "MPC_XY_CRUISE = 25 is outside PX4's range [3, 20]" in sitl.stderr_text()
     raw = peer.get_param("COM_RC_IN_MODE", target=target)
     assert struct.unpack("<i", struct.pack("<f", raw))[0] == 2
     raw = peer.get_param("MAV_SYS_ID", target=target)

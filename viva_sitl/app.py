@@ -44,6 +44,10 @@ class SitlApp:
         self.params.adopt("MAV_SYS_ID", config.mavlink.system_id)  # as PX4 SITL -i N
         for name, value in config.params:
             self.params.set(name, value)
+            spec = self.params.spec(name)
+            if not spec.in_range(value):  # stored as PX4 stores it; say what the vehicle will use
+                log.warning("%s = %g is outside PX4's range [%g, %g]: stored, the vehicle uses %g",
+                            name, value, spec.min, spec.max, self.params.get(name))  # fmt: skip
         self.autopilot = Autopilot(self.params, config.physics, inside=self.sim.inside_footage)
         self.boot_wall_time_s = time.time()
         self.state_wall_time_s = self.boot_wall_time_s
