@@ -11,6 +11,7 @@ from pathlib import Path
 
 from viva_sitl import __version__
 from viva_sitl.cliargs import positive_float
+from viva_sitl.geo import GeoOrigin, parse_home
 
 
 def _pose(text: str) -> tuple[float, float, float, float, float, float]:
@@ -25,6 +26,20 @@ def _pose(text: str) -> tuple[float, float, float, float, float, float]:
             f"--pose needs 6 finite numbers north,east,alt,roll,pitch,yaw; got {text!r}"
         )
     return values  # type: ignore[return-value]
+
+
+def _home(text: str) -> GeoOrigin:
+    try:
+        return parse_home(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def _hfov(text: str) -> float:
+    v = positive_float(text)
+    if v >= 180.0:
+        raise argparse.ArgumentTypeError(f"a horizontal FoV must be below 180 degrees, got {text!r}")
+    return v
 
 
 def _port(text: str) -> int:
@@ -53,6 +68,20 @@ def build_parser() -> argparse.ArgumentParser:
         "--footage", help="catalog name (synthetic, interchange, songdo-00003, ...) or a video/image path"
     )
     run.add_argument("--config", help="TOML config file (see configs/default.toml)")
+    run.add_argument(
+        "--home", type=_home, metavar="LAT,LON[,ALT]",
+        help="place the footage centre (the NED origin) here, as PX4_HOME_LAT/LON/ALT (default: PX4_HOME_* if "
+        "set, else the footage's geo-reference, else PX4's 47.397742,8.545594,488)",
+    )  # fmt: skip
+    run.add_argument(
+        "--footage-alt", type=positive_float, metavar="M", help="recording altitude of the footage (m)"
+    )
+    run.add_argument(
+        "--footage-hfov", type=_hfov, metavar="DEG", help="recording horizontal FoV of the footage (deg)"
+    )
+    run.add_argument(
+        "--footage-gsd", type=positive_float, metavar="M_PER_PX", help="ground sample distance of the footage"
+    )
     run.add_argument("--speed", type=positive_float, help="sim seconds per wall second (default 1)")
     run.add_argument("--seed", type=int, help="random seed (disturbances, sensor noise)")
     run.add_argument("--duration", type=positive_float, help="stop after this many wall seconds")

@@ -75,7 +75,10 @@ class Simulator:
         self.config = config or SimConfig()
         if isinstance(footage, str | Path) or footage is None:
             self.footage: FootageSource = open_footage(
-                footage if footage is not None else self.config.footage
+                footage if footage is not None else self.config.footage,
+                altitude_m=self.config.footage_alt_m,
+                hfov_deg=self.config.footage_hfov_deg,
+                gsd_m_per_px=self.config.footage_gsd_m_per_px,
             )
         else:
             self.footage = footage
@@ -108,8 +111,9 @@ class Simulator:
     # --- geometry ------------------------------------------------------------------
     @property
     def geo(self) -> GeoOrigin:
-        """NED origin on the ground (footage centre): the footage's geo-reference, else the configured home."""
-        return self.footage.geometry.geo_origin or self.config.home or GeoOrigin()
+        """NED origin on the ground (footage centre): the configured home (places any footage), else the footage's
+        geo-reference, else PX4 SITL's default home."""
+        return self.config.home or self.footage.geometry.geo_origin or GeoOrigin()
 
     def inside_footage(self, north_m: float, east_m: float) -> bool:
         """True while the ground point under the vehicle is inside the footage (the geofence)."""
