@@ -8,6 +8,7 @@ import logging
 import math
 import sys
 from pathlib import Path
+from typing import NoReturn
 
 from viva_sitl import __version__
 from viva_sitl.cliargs import positive_float
@@ -52,8 +53,15 @@ def _port(text: str) -> int:
     return v
 
 
+class _OneLineErrors(argparse.ArgumentParser):
+    """A bad flag is one line on stderr (the usage synopsis stays in --help), exit status 2 as argparse."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = _OneLineErrors(
         prog="viva-sitl",
         description="A PX4-compatible MAVLink SITL whose vehicle flies inside real nadir drone footage.",
     )
