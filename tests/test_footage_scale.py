@@ -193,3 +193,18 @@ def test_geo_referenced_footage_keeps_its_place_unless_told(tmp_path: Path) -> N
         assert (sim.geo.lat_deg, sim.geo.lon_deg, sim.geo.alt_amsl_m) == (47.397742, 8.545594, 488.0)
         meta = sim.render().meta  # the frame-and-pose ground truth follows the placement
         assert (meta.lat_deg, meta.lon_deg) == pytest.approx((47.397742, 8.545594))
+
+
+def test_render_flags_set_the_scale_without_a_warning(tmp_path: Path) -> None:
+    photo = write_photo(tmp_path / "holiday.jpg")
+    out = tmp_path / "view.png"
+    env = dict(os.environ, PYTHONPATH=str(REPO))
+    args = ["render", "--footage", str(photo), "--pose", "0,0,25,0,0,0", "-o", str(out)]
+    res = subprocess.run(
+        [sys.executable, "-m", "viva_sitl", *args, "--footage-alt", "50", "--footage-hfov", "60"],
+        capture_output=True, text=True, timeout=120, env=env, cwd=tmp_path,
+    )  # fmt: skip
+    assert res.returncode == 0, res.stderr
+    assert "WARNING" not in res.stderr
+    # 25 m up over a 57.7 m x 43.3 m picture (60 deg from 50 m): the VAC's 43.5 m x 32.6 m view is all footage
+    assert "coverage 1.00" in res.stdout and cv2.imread(str(out)) is not None

@@ -43,6 +43,19 @@ def _hfov(text: str) -> float:
     return v
 
 
+def _footage_scale_flags(p: argparse.ArgumentParser) -> None:
+    """--footage-alt/--footage-hfov/--footage-gsd: the footage's recording scale, beating its metadata files."""
+    p.add_argument(
+        "--footage-alt", type=positive_float, metavar="M", help="recording altitude of the footage (m)"
+    )
+    p.add_argument(
+        "--footage-hfov", type=_hfov, metavar="DEG", help="recording horizontal FoV of the footage (deg)"
+    )
+    p.add_argument(
+        "--footage-gsd", type=positive_float, metavar="M_PER_PX", help="ground sample distance of the footage"
+    )
+
+
 def _port(text: str) -> int:
     try:
         v = int(text)
@@ -81,15 +94,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="place the footage centre (the NED origin) here, as PX4_HOME_LAT/LON/ALT (default: PX4_HOME_* if "
         "set, else the footage's geo-reference, else PX4's 47.397742,8.545594,488)",
     )  # fmt: skip
-    run.add_argument(
-        "--footage-alt", type=positive_float, metavar="M", help="recording altitude of the footage (m)"
-    )
-    run.add_argument(
-        "--footage-hfov", type=_hfov, metavar="DEG", help="recording horizontal FoV of the footage (deg)"
-    )
-    run.add_argument(
-        "--footage-gsd", type=positive_float, metavar="M_PER_PX", help="ground sample distance of the footage"
-    )
+    _footage_scale_flags(run)
     run.add_argument("--speed", type=positive_float, help="sim seconds per wall second (default 1)")
     run.add_argument("--seed", type=int, help="random seed (disturbances, sensor noise)")
     run.add_argument("--duration", type=positive_float, help="stop after this many wall seconds")
@@ -125,6 +130,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--time", type=float, default=0.0, help="simulation time in s (selects the footage frame)"
     )
     render.add_argument("-o", "--output", required=True, help="output image (png/jpg)")
+    _footage_scale_flags(render)
 
     footage = sub.add_parser("footage", help="footage catalog: list | info | get | ingest", add_help=False)
     footage.add_argument("rest", nargs=argparse.REMAINDER)
@@ -139,6 +145,9 @@ def _cmd_render(args: argparse.Namespace) -> int:
     from viva_sitl.sim import Simulator
 
     cfg = SimConfig.load(args.config)
+    scale = {"footage_alt_m": args.footage_alt, "footage_hfov_deg": args.footage_hfov,
+             "footage_gsd_m_per_px": args.footage_gsd}  # fmt: skip
+    cfg = dataclasses.replace(cfg, **{k: v for k, v in scale.items() if v is not None})
     north, east, alt, roll, pitch, yaw = args.pose
     with Simulator(cfg, footage=args.footage or cfg.footage) as sim:
         state = EavState.at_rest(
