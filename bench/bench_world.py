@@ -76,6 +76,24 @@ def main() -> None:
         ref.append(statistics.median(times[1:]))
         with Simulator(SimConfig(), footage=SyntheticField(SyntheticFieldParams(unbounded=False))) as sim:
             finite.append(steady_ms(sim, (0.0, 0.0, -50.0), args.frames)[1])
+    # a flight: north at 10 m/s, 50 m up, one frame per 1/30 s (the windows come from the background thread)
+    flight: list[float] = []
+    with Simulator(SimConfig()) as sim:
+        for k in range(args.frames * args.rounds * 3):
+            s = EavState.at_rest((10.0 * k / 30.0, 0.0, -50.0), dt_s=sim.params.dt_s)
+            s = type(s)(**{**s.__dict__, "time_s": k / 30.0})
+            t0 = time.perf_counter()
+            sim.render(s)
+            flight.append((time.perf_counter() - t0) * 1e3)
+        field = sim.footage
+        assert isinstance(field, SyntheticField)
+        drawn, ahead = field.windows_drawn, field.windows_ahead
+    flight.sort()
+    print(
+        f"flight north 10 m/s at 50 m, {len(flight)} frames: median {statistics.median(flight):.2f} ms, "
+        f"p99 {flight[int(0.99 * (len(flight) - 1))]:.2f} ms, max {flight[-1]:.2f} ms; "
+        f"{drawn} windows, {ahead} drawn ahead"
+    )
     ref_ms = statistics.median(ref)
     print(
         f"reference: fixed 2048x2048 field, Renderer only, centre 50 m: {ref_ms:.2f} ms/frame (rounds {ref})"

@@ -142,3 +142,22 @@ def test_a_finite_field_on_request() -> None:
         sim.reset(pos_ned_m=(300.0, 0.0, -50.0))
         frame = sim.render()
         assert frame.meta.coverage == 0.0 and fill_fraction(frame.image_bgr) == 1.0
+
+
+def test_a_steady_flight_gets_its_next_windows_drawn_ahead() -> None:
+    """Flying north, the next windows come from the background thread and show the same ground as a fresh draw."""
+    with Simulator(footage="synthetic") as sim, Simulator(footage="synthetic") as fresh:
+        field = sim.footage
+        assert isinstance(field, SyntheticField)
+        for k in range(60):  # 2 m steps, 120 m
+            pos = (2.0 * k, 0.0, -50.0)
+            sim.reset(pos_ned_m=pos)
+            frame = sim.render()
+        assert field.windows_drawn >= 3 and field.windows_ahead == field.windows_drawn - 1
+        fresh.reset(pos_ned_m=pos)
+        ref = fresh.render()
+        assert (
+            sim.renderer.geometry != fresh.renderer.geometry
+        )  # drawn ahead: another window than a fresh one
+        diff = np.abs(frame.image_bgr.astype(int) - ref.image_bgr.astype(int))
+        assert diff.mean() < 0.5 and np.percentile(diff, 99.9) <= 4

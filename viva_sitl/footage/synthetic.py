@@ -12,7 +12,9 @@ function of its world position (the texture is hashed from the world lattice cel
 metres), so the field can be drawn anywhere: `ground_view()` draws a window around the camera's footprint at a ground
 sample distance 0.1 m x 2^L chosen from the camera height, at most `window_max_px` a side, so a frame costs the same
 2 km away or 300 m up. The window's background is kept while the footprint stays inside it (a 25 % margin each side);
-a frame costs one copy plus the moving objects. `frame(index)` is the nominal `width_px` x `height_px` window at the
+a frame costs one copy plus the moving objects. Once the footprint has used half of that margin, the next window
+(shifted the same way) is drawn on a background thread (`draw_ahead`), so a flight does not stall the renderer;
+which window is used depends only on the poses, never on timing (an unfinished one is waited for). `frame(index)` is the nominal `width_px` x `height_px` window at the
 centre (what `footage info`, `render` and the annotations' pixel boxes refer to); its geometry reports every ground
 point as covered. `[synthetic] unbounded = false` restores a finite field of that size (outside it: the camera fill).
 
@@ -26,6 +28,7 @@ import enum
 import math
 import threading
 from collections.abc import Callable
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Protocol, runtime_checkable
 
@@ -169,9 +172,8 @@ class SyntheticFieldParams:
     markers: tuple[MarkerSpec, ...] = field(default=DEFAULT_MARKERS)
     unbounded: bool = True  # no edge: the ground goes on forever (False: a finite width x height field)
     window_max_px: int = 2048  # largest side of a window drawn around the camera footprint (bounds the cost)
-    view_range_m: float = (
-        3000.0  # ground farther than this from the camera is not drawn (oblique views: fill)
-    )
+    view_range_m: float = 3000.0  # ground farther from the camera is not drawn (oblique views: fill)
+    draw_ahead: bool = True  # draw the next window on a background thread before this one runs out
 
     def __post_init__(self) -> None:
         if self.width_px < 64 or self.height_px < 64:
@@ -240,6 +242,13 @@ class _Window:
     geometry: FootageGeometry
     background: NDArray[np.uint8]
 
+    def margin_left(self, n_lo: float, n_hi: float, e_lo: float, e_hi: float) -> float:
+        """Ground (m) between the footprint and the nearest window edge (negative: outside)."""
+        g = self.geometry
+        n0, e0 = g.center_ne_m
+        hn, he = g.ground_height_m / 2.0, g.ground_width_m / 2.0
+        return min(n_lo - (n0 - hn), n0 + hn - n_hi, e_lo - (e0 - he), e0 + he - e_hi)
+
     def holds(self, level: int, n_lo: float, n_hi: float, e_lo: float, e_hi: float) -> bool:
         g = self.geometry
         n0, e0 = g.center_ne_m
@@ -276,7 +285,10 @@ class SyntheticField(FootageSource):
         self._window: _Window | None = None
         self._view_key: tuple[int, int] = (-1, -1)
         self._view: NDArray[np.uint8] | None = None
-        self.windows_drawn = 0  # statistics: backgrounds drawn by ground_view (tests, bench)
+        self.windows_drawn = 0  # statistics: windows ground_view moved to (tests, bench) ...
+        self.windows_ahead = 0  # ... of which drawn ahead on the background thread
+        self._pool: ThreadPoolExecutor | None = None
+        self._ahead: tuple[int, FootageGeometry, Future[NDArray[np.uint8]]] | None = None
 
     @property
     def fps(self) -> float:
@@ -481,21 +493,22 @@ class SyntheticField(FootageSource):
         lvl_res = math.floor(math.log2(ground_px_m / base)) if ground_px_m > base else 0
         lvl_cap = max(0, math.ceil(math.log2(span * (1.0 + 2.0 * WINDOW_MARGIN) / (p.window_max_px * base))))
         level = max(lvl_res, lvl_cap)
+        bbox = (n_lo, n_hi, e_lo, e_hi)
         with self._lock:
             win = self._window
-            if win is None or not win.holds(level, n_lo, n_hi, e_lo, e_hi):
-                gsd = base * (1 << level)
-                grow = WINDOW_MARGIN * span
-                w = min(p.window_max_px, 2 * math.ceil((e_hi - e_lo + 2 * grow) / gsd / 2.0) + 2)
-                h = min(p.window_max_px, 2 * math.ceil((n_hi - n_lo + 2 * grow) / gsd / 2.0) + 2)
-                centre = (round((n_lo + n_hi) / 2.0 / gsd) * gsd, round((e_lo + e_hi) / 2.0 / gsd) * gsd)
-                geom = FootageGeometry(
-                    w, h, gsd, p.recording_altitude_m * (1 << level), 0.0, None, centre, unbounded=True
-                )
-                win = _Window(level, geom, _readonly(self._draw_ground(geom)))
+            if win is None or not win.holds(level, *bbox):
+                win = self._take_ahead(level, bbox)
+                if win is None:
+                    geom = self._window_geometry(level, bbox, span, (0.0, 0.0))
+                    win = _Window(level, geom, _readonly(self._draw_ground(geom)))
                 self._window = win
                 self.windows_drawn += 1
                 self._view_key = (-1, -1)
+            elif p.draw_ahead and win.margin_left(*bbox) < 0.5 * WINDOW_MARGIN * span:
+                # the footprint has used half of the margin: draw the next window (shifted the same way) meanwhile
+                n0, e0 = win.geometry.center_ne_m
+                shift = ((n_lo + n_hi) / 2.0 - n0, (e_lo + e_hi) / 2.0 - e0)
+                self._start_ahead(level, self._window_geometry(level, bbox, span, shift))
             index = int(index) % self._frame_count
             key = (index, id(win))
             if self._view is None or self._view_key != key:
@@ -503,6 +516,53 @@ class SyntheticField(FootageSource):
                 self._draw_objects(img, win.geometry, self.time_of(index))
                 self._view, self._view_key = _readonly(img), key
             return self._view, win.geometry
+
+    def _window_geometry(
+        self, level: int, bbox: tuple[float, float, float, float], span: float, shift_ne: tuple[float, float]
+    ) -> FootageGeometry:
+        """The window for footprint `bbox` (n_lo, n_hi, e_lo, e_hi) at `level`: the footprint plus WINDOW_MARGIN of
+        its size each side, centred on it (moved by `shift_ne`), on the level's pixel grid, at most window_max_px."""
+        p = self.params
+        n_lo, n_hi, e_lo, e_hi = bbox
+        gsd = p.gsd_m_per_px * (1 << level)
+        grow = WINDOW_MARGIN * span
+        w = min(p.window_max_px, 2 * math.ceil((e_hi - e_lo + 2 * grow) / gsd / 2.0) + 2)
+        h = min(p.window_max_px, 2 * math.ceil((n_hi - n_lo + 2 * grow) / gsd / 2.0) + 2)
+        cn = round(((n_lo + n_hi) / 2.0 + shift_ne[0]) / gsd) * gsd
+        ce = round(((e_lo + e_hi) / 2.0 + shift_ne[1]) / gsd) * gsd
+        return FootageGeometry(
+            w, h, gsd, p.recording_altitude_m * (1 << level), 0.0, None, (cn, ce), unbounded=True
+        )
+
+    def _start_ahead(self, level: int, geom: FootageGeometry) -> None:
+        """Draw window `geom` on the background thread (one at a time), for `_take_ahead` to pick up."""
+        if self._ahead is not None and not self._ahead[2].done():
+            return
+        if self._ahead is not None and self._ahead[1] == geom:
+            return  # already drawn
+        self._texture_norm()  # computed here, so the worker only reads it
+        if self._pool is None:
+            self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="viva-sitl-ground")
+        self._ahead = (level, geom, self._pool.submit(self._draw_ground, geom))
+
+    def _take_ahead(self, level: int, bbox: tuple[float, float, float, float]) -> _Window | None:
+        """The window drawn ahead, if it holds this footprint (waits for it to finish: it is already under way)."""
+        ahead, self._ahead = self._ahead, None
+        if ahead is None:
+            return None
+        win = _Window(ahead[0], ahead[1], np.empty((0, 0, 3), np.uint8))
+        if not win.holds(level, *bbox):
+            ahead[2].cancel()
+            return None
+        self.windows_ahead += 1
+        return _Window(ahead[0], ahead[1], _readonly(ahead[2].result()))
+
+    def close(self) -> None:
+        """Stop the background window drawing (idempotent)."""
+        pool, self._pool = self._pool, None
+        if pool is not None:
+            pool.shutdown(wait=True, cancel_futures=True)
+        self._ahead = None
 
     def annotations(self, index: int) -> list[Annotation]:
         """Exact object positions at frame `index` (t = index / fps) in the nominal window; box_px edges in
