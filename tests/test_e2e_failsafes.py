@@ -6,6 +6,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 import pytest
@@ -90,8 +91,12 @@ def test_offboard_setpoint_loss_falls_back_to_hold(
 
 
 def test_footage_edge_geofence_holds_inside_and_refuses_outside_missions(
-    sitl: SitlProcess, peer_factory: Callable[[int], MavlinkPeer]
+    sitl_factory: Callable[..., SitlProcess], peer_factory: Callable[[int], MavlinkPeer], tmp_path: Path
 ) -> None:
+    # the default synthetic field has no edge: this one is finite (204.8 m square)
+    finite = tmp_path / "finite-synthetic.toml"
+    finite.write_text('name = "finite"\nkind = "synthetic"\n[synthetic]\nunbounded = false\n')
+    sitl = sitl_factory(footage=str(finite))
     peer = peer_factory(sitl.ports.gcs)
     peer.wait_autopilot()
     lat0, lon0 = home_of(peer)

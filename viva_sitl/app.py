@@ -23,10 +23,10 @@ import cv2
 
 from viva_sitl.autopilot import Autopilot, ParamStore
 from viva_sitl.clock import RealTimePacer, run_paced
-from viva_sitl.config import SimConfig
+from viva_sitl.config import ConfigError, SimConfig
 from viva_sitl.dynamics import EavState
 from viva_sitl.frame import RenderedFrame
-from viva_sitl.geo import GeoOrigin
+from viva_sitl.geo import GeoOrigin, home_from_env
 from viva_sitl.mavlink import CameraInfo, CaptureResult, MavlinkEndpoint, StreamEncoding, VideoStreamSpec
 from viva_sitl.sim import Simulator
 from viva_sitl.video import FrameScheduler, VideoPipeline
@@ -218,6 +218,19 @@ def config_from_args(args: argparse.Namespace) -> SimConfig:
         sim_updates["speed"] = args.speed
     if args.seed is not None:
         sim_updates["seed"] = args.seed
+    # placement, as PX4 SITL: --home, else [sim] home, else PX4_HOME_LAT/LON/ALT, else the footage's own place
+    home = getattr(args, "home", None)
+    if home is None and cfg.home is None:
+        try:
+            home = home_from_env()
+        except ValueError as exc:
+            raise ConfigError(str(exc)) from None
+    if home is not None:
+        sim_updates["home"] = home
+    for key, flag in (("footage_alt_m", "footage_alt"), ("footage_hfov_deg", "footage_hfov"),
+                      ("footage_gsd_m_per_px", "footage_gsd")):  # fmt: skip
+        if getattr(args, flag, None) is not None:
+            sim_updates[key] = getattr(args, flag)
     mav = cfg.mavlink
     if args.instance is not None:
         mav = dataclasses.replace(mav, instance=args.instance)

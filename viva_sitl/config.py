@@ -1,6 +1,7 @@
 """Configuration: one TOML file, one table per part, each table built into that part's frozen dataclass.
 
-    [sim]      footage, seed, speed, initial pose, home        -> SimConfig's own fields
+    [sim]      footage, seed, speed, initial pose, home,       -> SimConfig's own fields
+               footage_alt_m, footage_hfov_deg, footage_gsd_m_per_px
     [physics]  EavParams fields (rate_hz accepted for dt_s)    -> viva_sitl.dynamics.EavParams
     [physics.wind]                                             -> viva_sitl.dynamics.WindParams
     [camera]   CameraParams fields                             -> viva_sitl.camera.CameraParams
@@ -27,7 +28,7 @@ from typing import Any, TypeVar
 from viva_sitl.autopilot.params import ParamStore
 from viva_sitl.camera import CameraParams
 from viva_sitl.dynamics import EavParams
-from viva_sitl.geo import GeoOrigin
+from viva_sitl.geo import GeoOrigin, parse_home
 from viva_sitl.mavlink import MavlinkConfig
 from viva_sitl.video import VideoConfig
 
@@ -122,7 +123,13 @@ class SimConfig:
     speed: float = 1.0  # sim seconds per wall second for `run`
     initial_pos_ned_m: tuple[float, float, float] = (0.0, 0.0, 0.0)  # start on the ground at the origin
     initial_yaw_deg: float = 0.0
-    home: GeoOrigin | None = None  # used only when the footage has no geo-reference
+    # where the NED origin (footage centre) is on Earth: places ANY footage there (None: the footage's own
+    # geo-reference, else PX4's default home). TOML: "LAT,LON[,ALT]", [lat, lon(, alt)] or a table.
+    home: GeoOrigin | None = None
+    # the footage's recording scale, beating its metadata (None: metadata, DJI SRT/XMP/EXIF, else defaults)
+    footage_alt_m: float | None = None
+    footage_hfov_deg: float | None = None
+    footage_gsd_m_per_px: float | None = None
     physics: EavParams = field(default_factory=EavParams)
     camera: CameraParams = field(default_factory=CameraParams)
     mavlink: MavlinkConfig = field(default_factory=MavlinkConfig)
@@ -132,6 +139,12 @@ class SimConfig:
     def __post_init__(self) -> None:
         if not (self.speed > 0.0 and math.isfinite(self.speed)):
             raise ConfigError(f"sim.speed must be a positive number, got {self.speed!r}")
+        for key in ("footage_alt_m", "footage_hfov_deg", "footage_gsd_m_per_px"):
+            v = getattr(self, key)
+            if v is not None and not (v > 0.0 and math.isfinite(v)):
+                raise ConfigError(f"sim.{key} must be a positive number, got {v!r}")
+        if self.footage_hfov_deg is not None and self.footage_hfov_deg >= 180.0:
+            raise ConfigError(f"sim.footage_hfov_deg must be < 180, got {self.footage_hfov_deg!r}")
 
     @classmethod
     def load(cls, path: str | Path | None = None) -> SimConfig:
@@ -161,6 +174,14 @@ class SimConfig:
         misplaced = sections & set(sim)
         if misplaced:
             raise ConfigError(f"{where}[sim]: {sorted(misplaced)} must be tables of their own")
+        home = sim.get("home")
+        if isinstance(home, str | list):
+            try:
+                sim["home"] = dataclasses.asdict(
+                    parse_home(home if isinstance(home, str) else ",".join(str(v) for v in home))
+                )
+            except ValueError as exc:
+                raise ConfigError(f"{where}[sim].home: {exc}") from None
         merged: dict[str, Any] = {**sim, **{k: data[k] for k in sections - {"params"} if k in data}}
         physics = dict(merged.get("physics", {}))
         if "rate_hz" in physics:

@@ -35,7 +35,11 @@ def _human(n: int | None) -> str:
 
 def build_parser() -> argparse.ArgumentParser:
     common = argparse.ArgumentParser(add_help=False)
-    common.add_argument("--config-dir", type=Path, help="footage metadata folder (default: configs/footage)")
+    common.add_argument(
+        "--config-dir",
+        type=Path,
+        help="footage metadata folder (default: the catalog shipped in viva_sitl/data/footage)",
+    )
     common.add_argument("--shared-dir", type=Path, help="base of relative footage paths (default: ../shared)")
     common.add_argument(
         "--cache-dir", type=Path, help="download/ingest cache (default: $XDG_CACHE_HOME/viva-sitl)"

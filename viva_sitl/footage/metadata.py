@@ -1,4 +1,4 @@
-"""Footage metadata: one TOML file per footage (configs/footage/<name>.toml), read with tomllib.
+"""Footage metadata: one TOML file per footage (viva_sitl/data/footage/<name>.toml), read with tomllib.
 
 A footage file (top-level keys; only `name`, `kind` and, except for synthetic, `path` are required):
 
@@ -278,7 +278,7 @@ def catalog_from_table(table: dict[str, Any], *, where: str) -> CatalogSpec:
 
 
 def load_metadata_file(path: Path, *, shared_dir: Path | None = None) -> FootageMetadata | CatalogSpec:
-    """Parse one configs/footage/*.toml: relative paths resolve against `shared_dir`, then the file's own folder."""
+    """Parse one footage .toml: relative paths resolve against `shared_dir`, then the file's own folder."""
     table = read_toml(path)
     if "catalog" in table:
         return catalog_from_table(table, where=str(path))
