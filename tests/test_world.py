@@ -526,3 +526,19 @@ def test_annotate_ctrl_c_leaves_no_file(tmp_path: Path) -> None:
     assert rc == 130, b"".join(seen)[-500:]
     assert b"interrupted; nothing was written" in b"".join(seen)
     assert list(tmp_path.iterdir()) == [], "a half-written or temp file was left behind"
+
+
+def test_risk_at_equals_a_loop_over_objects() -> None:
+    world = load_world("synthetic", config_dir=CONFIGS)
+    rng = np.random.default_rng(5)
+    for _ in range(300):
+        t = float(rng.uniform(0, 120))
+        n, e = float(rng.uniform(-60, 60)), float(rng.uniform(-60, 60))
+        objs = world.tracks.objects_at(t)
+        level = world.static_risk_at(n, e)
+        for k in range(len(objs)):
+            risk = world.object_risk[ObjectClass(int(objs.object_class[k]))]
+            if math.dist(objs.ne_m[k], (n, e)) <= risk.buffer_m + 0.5 * max(objs.size_m[k]):
+                level = max(level, risk.level)
+        assert world.risk_at(n, e, t) == level
+        assert int(world.risk_levels_at(np.array([n]), np.array([e]), t)[0]) == level

@@ -1,8 +1,8 @@
 """`viva-sitl footage annotate`: derive object tracks for footage that has none.
 
 (b) method "motion" (no model): the camera hovers, so whatever moves against the background is an object. OpenCV's
-    MOG2 background subtractor (primed on frames spread over the whole clip, so the first frames already have a
-    background) -> morphology -> connected components (area limits in m^2) -> a small tracker -> tracks labelled
+    MOG2 background subtractor (primed with the per-pixel median of frames spread over the whole clip, so the first
+    frames already have a clean background) -> morphology -> connected components (area limits in m^2) -> a small tracker -> tracks labelled
     derived, class "moving object". Tracks that never travel `min_travel_m` are dropped (flicker, swaying trees).
     Tracker: greedy nearest-centroid association with constant-velocity prediction, written here because the
     light PyPI trackers do not fit: norfair pins numpy < 2 (the project runs numpy 2 with opencv 5), `trackers`
@@ -38,6 +38,7 @@ class MotionParams:
     max_side_px: int = 960  # frames are processed downscaled to at most this size
     var_threshold: float = 25.0  # MOG2 variance threshold
     prime_frames: int = 40  # frames spread over the clip that build the background first
+    prime_median: bool = True  # then as many copies of their per-pixel median (else the frames only)
     min_area_m2: float = 1.5
     max_area_m2: float = 400.0
     close_m: float = 1.5  # morphological closing size: joins the parts of one vehicle
@@ -147,8 +148,12 @@ def motion_tracks(src: FootageSource, params: MotionParams | None = None, progre
         return img if s == 1.0 else cv2.resize(img, size, interpolation=cv2.INTER_AREA).astype(np.uint8)
 
     mog = cv2.createBackgroundSubtractorMOG2(history=max(50, n_frames), varThreshold=p.var_threshold, detectShadows=False)  # fmt: skip
-    for i in np.linspace(0, n_frames - 1, min(p.prime_frames, n_frames)).astype(int):
-        mog.apply(work(int(i)), learningRate=-1)
+    # prime: the per-pixel median of frames spread over the clip is the background without the movers
+    sample = [work(int(i)) for i in np.linspace(0, n_frames - 1, min(p.prime_frames, n_frames)).astype(int)]
+    if p.prime_median:  # the frames teach the per-pixel spread (jitter), their median the clean background
+        sample = sample + [np.median(np.stack(sample), axis=0).astype(np.uint8)] * len(sample)
+    for img in sample:
+        mog.apply(img, learningRate=-1)
     tracker = CentroidTracker(p.gate_m / m_per_px, p.max_misses)
     area = m_per_px * m_per_px
     close_px = max(1, round(p.close_m / m_per_px)) | 1

@@ -83,6 +83,12 @@ class WorldModel:
         self.class_levels = dict(class_levels or DEFAULT_CLASS_LEVELS)
         self._obj_level = np.array([self.object_risk[c].level for c in ObjectClass], np.uint8)
         self._obj_buffer = np.array([self.object_risk[c].buffer_m for c in ObjectClass], np.float64)
+        # per presence row: the level it imposes and the squared reach (buffer + half its larger ground size)
+        reach = self._obj_buffer[tracks.row_class] + 0.5 * (
+            tracks.row_size_m.max(axis=1) if len(tracks.row_size_m) else np.zeros(0)
+        )
+        self._row_reach2 = reach * reach
+        self._row_level = self._obj_level[tracks.row_class]
 
     def static_risk_at(self, north_m: float, east_m: float) -> int:
         return self.risk_map.level_at(north_m, east_m)
@@ -92,14 +98,14 @@ class WorldModel:
         level = self.risk_map.level_at(north_m, east_m)
         if level >= 5:
             return level
-        objs = self.tracks.objects_at(t_s)
-        if len(objs) == 0:
+        sl = self.tracks.frame_slice(t_s)
+        if sl.start == sl.stop:
             return level
-        reach = self._obj_buffer[objs.object_class] + 0.5 * objs.size_m.max(axis=1)
-        d2 = (objs.ne_m[:, 0] - north_m) ** 2 + (objs.ne_m[:, 1] - east_m) ** 2
-        hit = d2 <= reach * reach
-        if np.any(hit):
-            level = max(level, int(self._obj_level[objs.object_class[hit]].max()))
+        ne = self.tracks.row_ne_m[sl]
+        d2 = (ne[:, 0] - north_m) ** 2 + (ne[:, 1] - east_m) ** 2
+        hit = d2 <= self._row_reach2[sl]
+        if hit.any():
+            level = max(level, int(self._row_level[sl][hit].max()))
         return level
 
     def risk_levels_at(

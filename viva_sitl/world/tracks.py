@@ -138,6 +138,22 @@ class TrackTable:
             tab = self._tables[key] = _class_table(key)
         return tab
 
+    def frame_slice(self, t_s: float) -> slice:
+        """The rows of the frame shown at time t (index `row_*` arrays with it): for callers' own vector maths."""
+        return self._slice(self.frame_at(t_s))
+
+    @property
+    def row_ne_m(self) -> NDArray[np.float64]:
+        return self._ne
+
+    @property
+    def row_size_m(self) -> NDArray[np.float64]:
+        return self._size
+
+    @property
+    def row_class(self) -> NDArray[np.uint8]:
+        return self._class
+
     def _slice(self, frame: int) -> slice:
         return slice(int(self._start[frame]), int(self._start[frame + 1]))
 
@@ -219,13 +235,16 @@ class TrackTable:
         )
         table = self._table(classes)
         out = np.full(t_arr.size, np.inf)
-        for f in np.unique(frames):  # one vectorised block per distinct frame
-            sl = self._slice(int(f))
-            keep = table[self._class[sl]]
-            ne = self._ne[sl][keep]
+        order = np.argsort(frames, kind="stable")
+        uniq, first, counts = np.unique(frames[order], return_index=True, return_counts=True)
+        for f, a, c in zip(
+            uniq.tolist(), first.tolist(), counts.tolist(), strict=True
+        ):  # one block per frame
+            sl = self._slice(f)
+            ne = self._ne[sl][table[self._class[sl]]]
             if ne.shape[0] == 0:
                 continue
-            idx = np.nonzero(frames == f)[0]
+            idx = order[a : a + c]
             d2 = (n_arr[idx, None] - ne[None, :, 0]) ** 2 + (e_arr[idx, None] - ne[None, :, 1]) ** 2
             out[idx] = np.sqrt(d2.min(axis=1))
         return out
