@@ -542,3 +542,22 @@ def test_risk_at_equals_a_loop_over_objects() -> None:
                 level = max(level, risk.level)
         assert world.risk_at(n, e, t) == level
         assert int(world.risk_levels_at(np.array([n]), np.array([e]), t)[0]) == level
+
+
+def test_bad_input_is_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    cv2.imwrite(str(tmp_path / "s.png"), np.full((100, 120, 3), 80, np.uint8))
+    (tmp_path / "s.toml").write_text("gsd_m_per_px = 0.1\nrecording_altitude_m = 50.0\n")
+    cases = [
+        (["annotate", str(tmp_path / "s.png"), "--no-progress"], "motion needs a video"),
+        (["annotate", str(tmp_path / "s.png"), "--method", "detector"], "needs --detector WEIGHTS"),
+        (["show", "no-such-footage", "-o", str(tmp_path / "o.png")], "unknown footage 'no-such-footage'"),
+        (
+            ["show", "synthetic", "--time", "nan", "-o", str(tmp_path / "o.png")],
+            "--time must be a finite number",
+        ),
+    ]
+    for argv, msg in cases:
+        assert footage_main([*argv, "--config-dir", str(CONFIGS)]) == 2
+        err = capsys.readouterr().err.strip()
+        assert msg in err and "\n" not in err, err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["s.png", "s.toml"]
