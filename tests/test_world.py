@@ -561,3 +561,25 @@ def test_bad_input_is_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str
         err = capsys.readouterr().err.strip()
         assert msg in err and "\n" not in err, err
     assert sorted(p.name for p in tmp_path.iterdir()) == ["s.png", "s.toml"]
+
+
+def test_existing_mot_annotations_become_interpolated_tracks(tmp_path: Path) -> None:
+    from viva_sitl.footage.testclip import write_coded_clip
+
+    clip = write_coded_clip(tmp_path / "c.mp4", 40, gop=10)  # 320x240 at 30 fps
+    (tmp_path / "c.txt").write_text("1,5,100,100,10,10,1,1\n11,5,120,100,10,10,1,1\n3,6,10,10,4,4,1,0\n")
+    (tmp_path / "c.toml").write_text(
+        "gsd_m_per_px = 0.1\nrecording_altitude_m = 50.0\n"
+        '[annotations]\npath = "c.txt"\nformat = "mot"\nclass_names = ["person", "car"]\n'
+    )
+    world = load_world(clip)
+    assert world.tracks.frame_count == 40 and world.tracks.fps == pytest.approx(30.0)
+    g = world.geometry
+    objs = world.tracks.objects_at(
+        5 / 30.0
+    )  # frame 5: halfway between the MOT frames 1 and 11 (0-based 0, 10)
+    assert len(objs) == 1 and ObjectClass(int(objs.object_class[0])) is ObjectClass.CAR
+    assert tuple(objs.ne_m[0]) == pytest.approx(g.px_to_ned(114.5, 104.5), abs=1e-9)
+    at2 = world.tracks.objects_at(2 / 30.0)
+    assert sorted(ObjectClass(int(c)).label for c in at2.object_class) == ["car", "person"]
+    assert len(world.tracks.objects_at(12 / 30.0)) == 0 and len(world.tracks.objects_at((40 + 2) / 30.0)) == 2
