@@ -108,6 +108,9 @@ def test_viva_roundtrip_is_atomic(tmp_path: Path) -> None:
     out = write_viva(tmp_path / "t.tracks.csv", rows, "a comment\nsecond line")
     assert parse_viva(out) == rows
     assert [p.name for p in tmp_path.iterdir()] == ["t.tracks.csv"]
+    umask = os.umask(0)
+    os.umask(umask)
+    assert out.stat().st_mode & 0o777 == 0o666 & ~umask
 
     def boom():  # an interrupted writer leaves neither the file nor its temp file
         yield rows[0]

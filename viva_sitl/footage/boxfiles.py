@@ -222,6 +222,9 @@ def write_viva(path: Path, rows: Iterable[BoxRow], comment: str = "") -> Path:
                 w.writerow([r.frame, "" if r.track_id is None else r.track_id, r.label, f"{r.x0_px:.2f}",
                             f"{r.y0_px:.2f}", f"{r.x1_px:.2f}", f"{r.y1_px:.2f}", int(r.lost), int(r.occluded),
                             "" if r.confidence is None else f"{r.confidence:.3f}", int(r.derived)])  # fmt: skip
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes 0600; the result is an ordinary file
         os.replace(tmp, path)
     except BaseException:
         with contextlib.suppress(OSError):
