@@ -22,26 +22,40 @@ from viva_sitl.autopilot import (
     ParamStore,
     PositionTarget,
 )
-from viva_sitl.dynamics import EavParams, EavState, quat_from_euler, step
+from viva_sitl.config import SimConfig
+from viva_sitl.dynamics import EavParams, EavState, quat_from_euler
+from viva_sitl.vehicle import Vehicle
 
 InsideFn = Callable[[float, float], bool]
 
 
 class Flight:
-    """An autopilot and an EAV stepped together, as the app does (update -> step)."""
+    """A Vehicle (the app's loop: autopilot.update -> EAV step) with the test's own geofence and parameters."""
 
     def __init__(self, eav: EavParams | None = None, inside: InsideFn | None = None, **params: float) -> None:
         self.eav = eav or EavParams()
-        self.params = ParamStore()
+        store = ParamStore()
         for k, v in params.items():
-            self.params.set(k, v)
-        self.ap = Autopilot(self.params, self.eav, inside=inside)
-        self.state = EavState.at_rest(dt_s=self.eav.dt_s)
+            store.set(k, v)
+        self.vehicle = Vehicle(SimConfig(physics=self.eav), geofence=inside or False, params=store)
+        self.params = self.vehicle.params
         self.events: list[Event] = []
         self.landed_states: list[LandedState] = [self.ap.landed_state]
         self.trace: list[tuple[float, np.ndarray, np.ndarray]] = []
         self.each: Callable[[Flight], None] | None = None
-        self.rng = np.random.default_rng(0)  # gusts / force noise, when the EAV has them
+
+    @property
+    def ap(self) -> Autopilot:
+        return self.vehicle.autopilot
+
+    @property
+    def state(self) -> EavState:
+        return self.vehicle.state
+
+    @state.setter
+    def state(self, state: EavState) -> None:
+        """Teleport the physics (the autopilot keeps its own state, as after a glitch)."""
+        self.vehicle.sim.state = state
 
     @property
     def t(self) -> float:
@@ -59,8 +73,7 @@ class Flight:
         for _ in range(int(round(seconds / self.eav.dt_s))):
             if self.each is not None:
                 self.each(self)
-            cmd = self.ap.update(self.t, self.state)
-            self.state = step(self.state, cmd, self.ap.eav_params(), self.rng)
+            self.vehicle.step(1)
             self.events += self.ap.pop_events()
             if self.ap.landed_state != self.landed_states[-1]:
                 self.landed_states.append(self.ap.landed_state)
@@ -159,9 +172,10 @@ def test_disarm_in_air_denied_kill_drops() -> None:
 
 
 def test_arming_checks() -> None:
-    f = Flight(inside=lambda n, e: n < 5.0)
-    out = f.ap.arm(0.0)
+    bare = Autopilot(ParamStore(), EavParams())
+    out = bare.arm(0.0)
     assert out.result == CommandResult.TEMPORARILY_REJECTED  # no state yet
+    f = Flight(inside=lambda n, e: n < 5.0)
     f.run(0.1)
     assert f.ap.set_mode(f.t, FlightMode.AUTO_MISSION).result == CommandResult.TEMPORARILY_REJECTED
     assert f.ap.set_mode(f.t, FlightMode.OFFBOARD).result == CommandResult.TEMPORARILY_REJECTED
@@ -556,7 +570,7 @@ def test_commands_in_odd_states() -> None:
 
 def test_air_start_holds_armed_with_home_below() -> None:
     f = Flight()
-    f.state = EavState.at_rest(pos_ned_m=(3.0, 4.0, -20.0), dt_s=f.eav.dt_s)
+    f.vehicle.reset(pos_ned_m=(3.0, 4.0, -20.0))  # the autopilot's first state is in the air
     f.run(5.0)
     assert f.ap.armed and f.ap.mode == FlightMode.AUTO_LOITER
     assert f.pos == pytest.approx([3.0, 4.0, -20.0], abs=0.1)
