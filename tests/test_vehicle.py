@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from viva_sitl.autopilot import FlightMode, ParamStore
-from viva_sitl.config import SimConfig
+from viva_sitl.config import ConfigError, SimConfig
 from viva_sitl.dynamics import EavParams, WindParams
 from viva_sitl.vehicle import Vehicle
 
@@ -71,3 +71,20 @@ def test_air_start_and_custom_geofence() -> None:
         assert v.autopilot.reposition(v.time_s, 10.0, 0.0, -10.0, None).reason == (
             "Reposition denied: target outside footage"
         )
+
+
+def test_heavier_airframe_from_config_hovers_and_an_unliftable_one_is_refused() -> None:
+    cfg = SimConfig.from_dict({"physics": {"mass_kg": 2.0}})
+    assert cfg.physics.max_thrust_n == pytest.approx(
+        2.0 * cfg.physics.hover_thrust_n
+    )  # thrust follows the mass
+    with Vehicle(cfg, geofence=False) as v:
+        assert v.autopilot.arm(v.time_s).ok and v.autopilot.takeoff(v.time_s, 5.0).ok
+        v.step(int(round(15.0 / v.dt_s)))
+        assert v.autopilot.mode == FlightMode.AUTO_LOITER
+        assert v.state.altitude_m == pytest.approx(5.0, abs=0.3)
+        v.step(int(round(3.0 / v.dt_s)))
+        assert v.state.altitude_m == pytest.approx(5.0, abs=0.3)
+    with pytest.raises(ConfigError) as err:
+        SimConfig.from_dict({"physics": {"mass_kg": 2.0, "max_thrust_n": 9.0}})
+    assert "cannot lift" in str(err.value) and "\n" not in str(err.value)

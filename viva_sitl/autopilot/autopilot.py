@@ -14,8 +14,10 @@ Behaviour choices where PX4's is unclear or unsuitable (also in the README):
 - Boot mode is AUTO_LOITER (Hold), as PX4 SITL without RC.
 - Command refusals come back only as Outcome(reason); the MAVLink layer sends the reason as STATUSTEXT. Events are
   for things that happen by themselves (failsafes, take-off/landing detection, auto-disarm, mission progress).
-- Arming is allowed in every mode that can run (RTL and LAND too, so a vehicle that landed there can be re-armed
-  and take off again); refusals are DENIED, mode-switch refusals TEMPORARILY_REJECTED (PX4 Commander's mapping).
+- Arming is refused in Land and Return (PX4's mode_req_prevent_arming); selecting them while disarmed is accepted
+  (PX4 allows every mode change while disarmed), and on disarming the mode returns to the last user-selected mode
+  that allows arming (Hold at boot), so a vehicle that landed can be re-armed. Refusals are DENIED, mode-switch
+  refusals TEMPORARILY_REJECTED (PX4 Commander's mapping).
 - Takeoff while disarmed: DENIED ("Takeoff denied: vehicle not armed"). Land while on the ground: ACCEPTED (mode
   becomes AUTO_LAND; an armed vehicle then auto-disarms after COM_DISARM_LAND).
 - OFFBOARD is accepted when a valid setpoint arrived within the last 0.5 s (i.e. a > 2 Hz stream). PX4 itself only
@@ -66,7 +68,7 @@ class Autopilot:
         self.ctx = FlightContext(params, eav, inside)
         self.ctx.sync_sim_params_from(eav)
         self.tasks = FlightTasks(self.ctx)
-        self.land_detector = LandDetector()
+        self.land_detector = LandDetector(params)
         self.commander = Commander(self.ctx, self.tasks, self.land_detector)
         self._bat_level = 0  # 0 ok, 1 low, 2 critical (events once per crossing)
 

@@ -28,6 +28,10 @@ from viva_sitl.autopilot.tasks import MANUAL_MODES, FlightTasks
 from viva_sitl.autopilot.types import ACCEPTED, CommandResult, FlightMode, Outcome, Severity
 
 MAX_TAKEOFF_ALT_M = 1000.0
+# PX4's mode_req_prevent_arming (of the modes this vehicle has): arming is refused while one of them is selected.
+# Selecting them while disarmed is allowed (PX4 allows every mode change while disarmed); on disarming, the mode
+# returns to the last one the user selected that allows arming (PX4's UserModeIntention::onDisarm).
+PREVENTS_ARMING = frozenset({FlightMode.AUTO_LAND, FlightMode.AUTO_RTL})
 GEOFENCE_CHECK_S = 0.1  # the footage test runs at 10 Hz (it may be costly)
 
 
@@ -48,6 +52,11 @@ class Commander:
         self.gcs_seen = False
         self.gcs_last_s = -math.inf
         self._gf_next_check_s = -math.inf
+        self.mode_after_disarm = FlightMode.AUTO_LOITER  # the last user-selected mode that allows arming
+
+    def _user_selected(self, mode: FlightMode) -> None:
+        if mode not in PREVENTS_ARMING and mode != FlightMode.AUTO_TAKEOFF:
+            self.mode_after_disarm = mode
 
     # --- arming --------------------------------------------------------------------------------
     def prearm_check(self, now_s: float) -> Outcome:
@@ -69,6 +78,10 @@ class Commander:
             return denied("Arming denied: offboard setpoints not streaming")
         if mode == FlightMode.AUTO_READY:
             return denied("Arming denied: mode not armable")
+        if mode in PREVENTS_ARMING:
+            return denied(
+                f"Arming denied: {'Land' if mode == FlightMode.AUTO_LAND else 'Return'} mode not armable"
+            )
         if mode in MANUAL_MODES:
             manual = tasks.manual.input
             if not tasks.manual.fresh(now_s) or manual is None:
@@ -113,6 +126,8 @@ class Commander:
         self.ctx.ctrl.reset()
         self.tasks.offboard.rate_att = None
         self.ctx.event(severity, text)
+        if self.ctx.mode in PREVENTS_ARMING:
+            self.ctx.mode = self.mode_after_disarm  # activated when armed again
 
     def disarm(self, now_s: float, force: bool = False) -> Outcome:
         self.ctx.now_s = now_s
@@ -130,9 +145,10 @@ class Commander:
         return ACCEPTED
 
     def auto_disarm(self, now_s: float) -> None:
-        """COM_DISARM_LAND after a landing, COM_DISARM_PRFLT when armed but never took off (< 0: never)."""
+        """COM_DISARM_LAND after the land detector declared the landing, COM_DISARM_PRFLT when armed but never took
+        off (< 0: never)."""
         ctx, ld = self.ctx, self.land_detector
-        if not (ctx.armed and ctx.on_ground):
+        if not (ctx.armed and ld.landed):
             return
         limit = ctx.params.get("COM_DISARM_LAND") if ld.has_flown else ctx.params.get("COM_DISARM_PRFLT")
         if limit < 0:
@@ -178,6 +194,7 @@ class Commander:
             return rejected("Switching to Mission denied: no valid mission")
         if mode in MANUAL_MODES and not tasks.manual.fresh(now_s):
             return rejected(f"Switching to {mode.name} denied: no manual control (RC)")
+        self._user_selected(mode)
         if mode == FlightMode.AUTO_TAKEOFF:
             if ctx.armed:
                 tasks.takeoff.start(ctx.params.get("MIS_TAKEOFF_ALT"))
@@ -212,6 +229,7 @@ class Commander:
             speed_m_s = None
         if not ctx.is_inside(float(target[0]), float(target[1])):
             return denied("Reposition denied: target outside footage")
+        self._user_selected(FlightMode.AUTO_LOITER)
         self.tasks.enter(FlightMode.AUTO_LOITER, now_s)
         self.tasks.hold.hold_at(target, yaw_rad)
         if speed_m_s is not None:
@@ -243,6 +261,7 @@ class Commander:
             return denied("Mission start denied: no valid mission")
         if not (0 <= first_seq < len(mission.items)):
             return denied(f"Mission start denied: item {first_seq} does not exist")
+        self._user_selected(FlightMode.AUTO_MISSION)
         mission.start_at(now_s, first_seq)
         return ACCEPTED
 

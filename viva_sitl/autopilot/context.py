@@ -140,7 +140,9 @@ class FlightContext:
                 base,
                 mass_kg=mass,
                 drag_kd_n_s_m=p.get("SIM_DRAG"),
-                max_thrust_n=base.max_thrust_n * mass / base.mass_kg,
+                max_thrust_n=base.max_thrust_n
+                if mass == base.mass_kg
+                else base.max_thrust_n * mass / base.mass_kg,
                 wind=wind,
             )
             if new != cached:
