@@ -1,6 +1,6 @@
 """Wiring: the only place that connects footage, dynamics, camera, autopilot, MAVLink and video.
 
-asyncio loop (one thread):  physics task (paced by the clock) -> Autopilot.update -> EAV step
+asyncio loop (one thread):  physics task (paced by the clock) -> Vehicle.step (Autopilot.update -> EAV step)
                             MavlinkEndpoint tasks (UDP I/O, telemetry, commands)
 render thread:              at the stream fps, snapshot the (frozen) state -> VAC render -> VideoPipeline.submit
 video worker threads:       encode + send (bounded queues; late frames dropped and counted)
@@ -29,6 +29,7 @@ from viva_sitl.frame import RenderedFrame
 from viva_sitl.geo import GeoOrigin, home_from_env
 from viva_sitl.mavlink import CameraInfo, CaptureResult, MavlinkEndpoint, StreamEncoding, VideoStreamSpec
 from viva_sitl.sim import Simulator
+from viva_sitl.vehicle import Vehicle
 from viva_sitl.video import FrameScheduler, VideoPipeline
 
 log = logging.getLogger("viva_sitl.app")
@@ -39,16 +40,9 @@ class SitlApp:
 
     def __init__(self, config: SimConfig, *, video: bool = True, run_dir: Path | None = None) -> None:
         self.config = config
-        self.sim = Simulator(config)
-        self.params = ParamStore()
-        self.params.adopt("MAV_SYS_ID", config.mavlink.system_id)  # as PX4 SITL -i N
-        for name, value in config.params:
-            self.params.set(name, value)
-            spec = self.params.spec(name)
-            if not spec.in_range(value):  # stored as PX4 stores it; say what the vehicle will use
-                log.warning("%s = %g is outside PX4's range [%g, %g]: stored, the vehicle uses %g",
-                            name, value, spec.min, spec.max, self.params.get(name))  # fmt: skip
-        self.autopilot = Autopilot(self.params, config.physics, inside=self.sim.inside_footage)
+        self.vehicle = Vehicle(config)
+        self.sim: Simulator = self.vehicle.sim
+        self.params: ParamStore = self.vehicle.params
         self.boot_wall_time_s = time.time()
         self.state_wall_time_s = self.boot_wall_time_s
         self.run_dir = run_dir or Path("runs") / time.strftime("%Y%m%d-%H%M%S")
@@ -68,6 +62,10 @@ class SitlApp:
         self._physics_task: asyncio.Task[None] | None = None
 
     # --- VehicleLink ----------------------------------------------------------------------
+    @property
+    def autopilot(self) -> Autopilot:
+        return self.vehicle.autopilot
+
     @property
     def state(self) -> EavState:
         return self.sim.state
@@ -130,15 +128,11 @@ class SitlApp:
 
     # --- loops ---------------------------------------------------------------------------
     def _step_once(self) -> None:
-        state = self.sim.state
-        self.sim.step(self.autopilot.update(state.time_s, state))
+        self.vehicle.step(1)
 
     def _after_batch(self) -> None:
         self.state_wall_time_s = time.time()
-        new_params = self.autopilot.eav_params()  # cached on the parameter revision: cheap
-        if new_params != self.sim.params:
-            self.sim.set_params(new_params)
-            self.pacer.dt_s = new_params.dt_s
+        self.pacer.dt_s = self.vehicle.dt_s
 
     def stop(self) -> None:
         self._stopping.set()

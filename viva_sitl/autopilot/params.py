@@ -95,6 +95,8 @@ _I, _F = ParamType.INT32, ParamType.REAL32
 # name), BAT1_* (PX4 generates them per battery instance; QGC's snapshot lacks them) and the SIM_* airframe
 # parameters other than SIM_BAT_MIN_PCT are ours.
 _WIRED_TABLE: tuple[tuple[str, ParamType, float, float, float, str], ...] = (
+    # --- land detector
+    ("LNDMC_TRIG_TIME", _F, 1.0, 0.1, 10.0, "Ground contact held this long before landed is declared (s)"),
     # --- mission / takeoff
     ("MIS_TAKEOFF_ALT", _F, 2.5, 0.0, 100.0, "Take-off altitude above home (m)"),
     ("MIS_DIST_1WP", _F, 900.0, 0.0, 10000.0, "Max distance home -> first waypoint (m), 0 = off"),
