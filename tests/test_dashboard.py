@@ -230,3 +230,51 @@ def test_busy_explicit_port_is_a_one_line_error_and_default_port_falls_back(tmp_
         proc.stop()
         assert f"cannot listen on 127.0.0.1:{port}" in str(err.value)
         assert proc.returncode == 2
+
+
+def test_direct_mode_flies_roll_pitch_yaw_rate_thrust_through_offboard_attitude(dash: SitlProcess) -> None:
+    base = _url(dash)
+    with MavlinkPeer(dash.ports.gcs) as peer:
+        peer.wait_autopilot()
+
+        async def run() -> None:
+            async with aiohttp.ClientSession() as s, s.ws_connect(f"{base}/ws") as ws:
+                await _next(ws, "hello")
+                await ws.send_str(json.dumps({"t": "take_control"}))
+                await _next(ws, "role")
+                # take off first, as a pilot would, then switch to the direct mode
+                for i, cmd in enumerate(({"cmd": "arm"}, {"cmd": "takeoff"})):
+                    await ws.send_str(json.dumps({"t": "cmd", "id": i, **cmd}))
+                    assert (await _next(ws, "ack", pred=lambda m, i=i: m["id"] == i))["ok"]
+                await _wait_state(
+                    s,
+                    base,
+                    lambda st: st["alt_agl_m"] > 2.3 and abs(st["vertical_speed_m_s"]) < 0.2,
+                    40,
+                    "hover",
+                )
+                await ws.send_str(json.dumps({"t": "cmd", "id": 10, "cmd": "mode", "mode": "DIRECT"}))
+                ack = await _next(ws, "ack", pred=lambda m: m["id"] == 10)
+                assert ack["ok"], ack["reason"]
+                st = await _wait_state(s, base, lambda st: st["mode"] == "DIRECT", 5, "DIRECT on the HUD")
+                assert st["px4_mode"] == "OFFBOARD"
+                t0 = time.monotonic()
+                # right stick half right: the vehicle rolls right (the direct mode's roll = y * max tilt)
+                while time.monotonic() - t0 < 1.5:
+                    await ws.send_str(json.dumps({"t": "sticks", "x": 0.0, "y": 0.3, "z": 0.5, "r": 0.0}))
+                    st = await _state(s, base)
+                    if st["att_deg"][0] > 10.0:
+                        break
+                    await asyncio.sleep(0.05)
+                assert st["att_deg"][0] > 10.0, st["att_deg"]
+                # silence: sticks centred -> level attitude at hover thrust
+                await _wait_state(s, base, lambda st: abs(st["att_deg"][0]) < 2.0, 10, "level again")
+                await ws.send_str(json.dumps({"t": "cmd", "id": 11, "cmd": "mode", "mode": "POSCTL"}))
+                assert (await _next(ws, "ack", pred=lambda m: m["id"] == 11))["ok"]
+                await _wait_state(s, base, lambda st: st["mode"] == "POSCTL", 5, "POSCTL after DIRECT")
+
+        asyncio.run(run())
+        rolled = [m for m in peer.messages("ATTITUDE") if m.roll > math.radians(10)]
+        assert rolled, "MAVLink never reported the direct-mode roll"
+        assert any(m.custom_mode == 6 << 16 for m in peer.messages("HEARTBEAT", component=1))
+    assert dash.alive

@@ -87,6 +87,27 @@ def test_page_shows_the_flight_and_keys_fly_it(sitl_factory: Callable[..., SitlP
         wait_for(lambda: attr(driver, "overview", "data-bg-frame"), 10, "the overview footage image")
         screenshot(driver, shots, "01-loaded")
 
+        # Zoom (mouse wheel at the vehicle): the server sends a crop of the visible part, at the canvas resolution.
+        full_rect = [float(v) for v in (attr(driver, "overview", "data-bg-rect") or "").split(",")]
+        driver.execute_script(
+            "const c = document.getElementById('overview'), r = c.getBoundingClientRect();"
+            "for (let i = 0; i < 8; i++) c.dispatchEvent(new WheelEvent('wheel', {deltaY: -100, bubbles: true,"
+            " cancelable: true, clientX: r.left + r.width / 2, clientY: r.top + r.height / 2}));"
+        )
+
+        def zoomed_rect() -> list[float] | None:
+            rect = [float(v) for v in (attr(driver, "overview", "data-bg-rect") or "").split(",")]
+            return rect if rect[2] - rect[0] < (full_rect[2] - full_rect[0]) / 4 else None
+
+        rect = wait_for(zoomed_rect, 10, "a zoomed-in overview crop")
+        size = driver.execute_script(
+            "const c = document.getElementById('overview'); return [c.width, c.height];"
+        )
+        # the crop asked for is no bigger than the canvas (times devicePixelRatio 1 in headless Chromium)
+        assert rect[2] - rect[0] < full_rect[2] - full_rect[0] and size[0] <= 2048
+        screenshot(driver, shots, "01b-zoomed")
+        driver.find_element("id", "btn-fit").click()
+
         # A refused command shows its reason on the page and goes out as STATUSTEXT like a MAVLink refusal.
         press(driver, "c")
         wait_for(lambda: attr(driver, "role", "data-role") == "pilot", 5, "this page to take control")

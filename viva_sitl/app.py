@@ -151,6 +151,10 @@ class SitlApp:
     # --- loops ---------------------------------------------------------------------------
     def _step_once(self) -> None:
         state = self.sim.state
+        if (
+            self.dashboard is not None
+        ):  # dashboard: its sticks reach the autopilot at every step (an RC receiver)
+            self.dashboard.before_step(state.time_s)
         self.sim.step(self.autopilot.update(state.time_s, state))
 
     def _after_batch(self) -> None:

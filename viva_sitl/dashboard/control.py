@@ -92,6 +92,8 @@ class PilotState:
     direct: bool = False
     direct_yaw_rad: float = 0.0
     last_tick_sim_s: float | None = None
+    fed_manual: ManualInput | None = None  # what before_step() gives the autopilot at every physics step
+    fed_attitude: AttitudeTarget | None = None
 
 
 @dataclass
@@ -116,6 +118,7 @@ class Controller:
         self.pilot.sticks = CENTRED
         self.pilot.sticks_wall_s = -math.inf
         # RC present at once: a mode switch may follow right away
+        self.pilot.fed_manual = CENTRED
         self.autopilot.set_manual_input(self.sim_time_s(), CENTRED)
         if prev is not None and prev != client_id:
             self.stats.takeovers += 1
@@ -126,7 +129,7 @@ class Controller:
         """The pilot gives control back: the dashboard stops feeding sticks (the RC-loss failsafe applies)."""
         if self.pilot.client_id != client_id:
             return False
-        self.pilot = PilotState(direct_yaw_rad=self.pilot.direct_yaw_rad)
+        self.pilot = PilotState(direct_yaw_rad=self.pilot.direct_yaw_rad)  # feeding off
         return True
 
     def client_gone(self, client_id: int) -> None:
@@ -135,6 +138,8 @@ class Controller:
             self.pilot.client_id = None
             self.pilot.sticks = CENTRED
             self.pilot.sticks_wall_s = -math.inf
+            if self.pilot.feeding:
+                self.pilot.fed_manual = CENTRED
 
     def is_pilot(self, client_id: int) -> bool:
         return self.pilot.client_id == client_id
@@ -152,6 +157,7 @@ class Controller:
         self.pilot.sticks = manual
         self.pilot.sticks_wall_s = now_wall_s
         self.stats.sticks += 1
+        self.pilot.fed_manual = manual
         self.autopilot.set_manual_input(self.sim_time_s(), manual)  # at once; tick() keeps it fresh
         return None
 
@@ -167,6 +173,7 @@ class Controller:
             return
         now = self.sim_time_s()
         sticks = self.current_sticks(now_wall_s)
+        p.fed_manual = sticks
         self.autopilot.set_manual_input(now, sticks)
         dt = 0.0 if p.last_tick_sim_s is None else max(0.0, min(0.5, now - p.last_tick_sim_s))
         p.last_tick_sim_s = now
@@ -175,6 +182,17 @@ class Controller:
                 p.direct = False  # someone switched away (a button, MAVLink, a failsafe): direct mode ends
                 return
             self._feed_direct(now, sticks, dt)
+
+    def before_step(self, now_s: float) -> None:
+        """Called by the app before every physics step: the latest sticks (and direct-mode attitude) reach the
+        autopilot at each step, as from an RC receiver wired to it. So a busy machine, whose loop runs many physics
+        steps in one batch, never looks like an RC loss; expiry stays with tick() (wall time)."""
+        p = self.pilot
+        if not p.feeding or p.fed_manual is None:
+            return
+        self.autopilot.set_manual_input(now_s, p.fed_manual)
+        if p.direct and p.fed_attitude is not None and self.autopilot.mode == FlightMode.OFFBOARD:
+            self.autopilot.set_attitude_target(now_s, p.fed_attitude)
 
     def _attitude_target(self, sticks: ManualInput) -> AttitudeTarget:
         ap = self.autopilot
@@ -186,7 +204,8 @@ class Controller:
     def _feed_direct(self, now: float, sticks: ManualInput, dt: float) -> None:
         rate = math.radians(self.autopilot.params.get("MPC_MAN_Y_MAX"))
         self.pilot.direct_yaw_rad = wrap_pi(self.pilot.direct_yaw_rad + sticks.r * rate * dt)
-        self.autopilot.set_attitude_target(now, self._attitude_target(sticks))
+        self.pilot.fed_attitude = self._attitude_target(sticks)
+        self.autopilot.set_attitude_target(now, self.pilot.fed_attitude)
 
     # --- buttons -----------------------------------------------------------------------------
     def command(self, client_id: int, msg: dict[str, Any]) -> Outcome:
@@ -240,7 +259,8 @@ class Controller:
             return _denied("Direct mode needs control (press Take control)")
         self.pilot.direct_yaw_rad = float(self.yaw_rad())
         # as MAVSDK's offboard start: a setpoint first, then the mode switch (refused when the stream is stale)
-        outcome = ap.set_attitude_target(now, self._attitude_target(CENTRED))
+        self.pilot.fed_attitude = self._attitude_target(CENTRED)
+        outcome = ap.set_attitude_target(now, self.pilot.fed_attitude)
         if outcome.ok:
             outcome = ap.set_mode(now, FlightMode.OFFBOARD)
         self.pilot.direct = outcome.ok

@@ -203,6 +203,10 @@ class Dashboard:
             self._runner = None
         await asyncio.get_running_loop().run_in_executor(None, self.overview.close)
 
+    def before_step(self, now_s: float) -> None:
+        """The app calls this before every physics step (cheap when no page steers)."""
+        self.controller.before_step(now_s)
+
     def _vac_drops(self) -> int:
         return self.vac_page_drops + sum(c.dropped for c in self._vac_clients.values())
 
