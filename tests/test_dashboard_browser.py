@@ -178,6 +178,18 @@ def test_page_shows_the_flight_and_keys_fly_it(sitl_factory: Callable[..., SitlP
         assert attr(driver, "hud-mode", "data-value") == "POSCTL"
         screenshot(driver, shots, "04-holding")
 
+        # A key held while the window loses focus (tab switched, hidden) is released: sticks centred on the server.
+        ActionChains(driver).key_down("d").perform()
+        try:
+            wait_for(lambda: "y 0.60" in text(driver, "hud-sticks"), 5, "the D key on the server's sticks")
+            driver.execute_script("window.dispatchEvent(new Event('blur'));")
+            wait_for(lambda: "y 0.00" in text(driver, "hud-sticks"), 5, "sticks centred after blur")
+        finally:
+            ActionChains(driver).key_up("d").perform()
+        peer.wait(
+            "LOCAL_POSITION_NED", lambda m: math.hypot(m.vx, m.vy) < 0.3, 30, what="the stop after blur"
+        )
+
         # Kill needs the confirmation button; then the motors stop (disarmed, as MAVLink reports).
         press(driver, "k")
         driver.find_element("id", "btn-kill-confirm").click()

@@ -108,3 +108,59 @@ def test_footprint_is_a_trapezoid_under_tilt_and_follows_the_vehicle() -> None:
         assert footprint_px(src.geometry, cam, (0.0, 0.0, -50.0), (0.0, 1.5, 0.0)) is None
     finally:
         src.close()
+
+
+class _RiskLayer:
+    name = "risk map"
+
+    def features(self, time_s: float, footage_frame_index: int) -> list[dict[str, object]]:
+        return [
+            {
+                "kind": "polygon",
+                "points": [[0, 0], [100, 0], [100, 100]],
+                "label": "high",
+                "fill": "rgba(255,0,0,.3)",
+            }
+        ]
+
+
+class _BrokenLayer:
+    name = "broken"
+
+    def features(self, time_s: float, footage_frame_index: int) -> list[dict[str, object]]:
+        raise RuntimeError("provider bug")
+
+
+def test_layer_providers_are_served_and_a_broken_one_does_not_break_the_hud() -> None:
+    aiohttp = pytest.importorskip("aiohttp")
+    from viva_sitl.app import SitlApp
+    from viva_sitl.config import SimConfig
+    from viva_sitl.dashboard import DashboardConfig
+
+    app = SitlApp(SimConfig(), video=False, dashboard=DashboardConfig(port=0))
+    assert app.dashboard is not None
+    app.dashboard.add_layer(_RiskLayer())
+    app.dashboard.add_layer(_BrokenLayer())
+
+    async def run() -> tuple[dict[str, object], dict[str, object]]:
+        await app.dashboard.start()
+        try:
+            async with aiohttp.ClientSession() as s:
+                async with s.get(app.dashboard.url + "api/info") as r:
+                    info = await r.json()
+                async with s.get(app.dashboard.url + "api/state") as r:
+                    state = await r.json()
+            return info, state
+        finally:
+            await app.dashboard.stop()
+
+    try:
+        info, state = asyncio.run(run())
+    finally:
+        app.sim.close()
+    assert info["layers"] == ["ground truth", "risk map", "broken"]
+    layers = state["layers"]
+    assert isinstance(layers, dict)
+    assert layers["risk map"][0]["fill"] == "rgba(255,0,0,.3)"
+    assert layers["broken"] == []
+    assert len(layers["ground truth"]) > 0  # the synthetic field's markers, from the footage annotations

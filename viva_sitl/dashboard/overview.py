@@ -31,7 +31,9 @@ class LayerProvider(Protocol):
     """A toggleable overview layer (ground-truth objects, risk map; viva_sitl/world provides them).
 
     `features(time_s, footage_frame_index)` returns drawable features in footage pixels, each a dict:
-    {"kind": "box"|"polygon"|"point", "points": [[u, v], ...], "label": str, "color": "#rrggbb" (optional)}.
+    {"kind": "box"|"polygon"|"point", "points": [[u, v], ...], "label": str, "color": "#rrggbb" (optional),
+    "fill": CSS colour with alpha, e.g. "rgba(255,0,0,0.3)" (polygons, optional: a risk map's cells)}.
+    Register one with `Dashboard.add_layer(provider)` (before or after start); the page shows a toggle per layer.
     Called on the asyncio loop at the telemetry rate: it must be cheap (precompute; never block).
     """
 

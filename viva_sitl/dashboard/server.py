@@ -203,6 +203,11 @@ class Dashboard:
             self._runner = None
         await asyncio.get_running_loop().run_in_executor(None, self.overview.close)
 
+    def add_layer(self, provider: LayerProvider) -> None:
+        """A toggleable overview layer (viva_sitl/world's ground truth, the trials' risk map); pages opened later
+        list it (an open page picks it up on reload)."""
+        self.layers.append(provider)
+
     def before_step(self, now_s: float) -> None:
         """The app calls this before every physics step (cheap when no page steers)."""
         self.controller.before_step(now_s)

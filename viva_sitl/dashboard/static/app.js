@@ -159,7 +159,11 @@ function drawOverview() {
     for (const ft of s.layers[name] || []) {
       if (ft.color) { ctx.strokeStyle = ft.color; ctx.fillStyle = ft.color; }
       if (ft.kind === "box") { const [a, b] = toCanvas(ft.points[0]), [e, f] = toCanvas(ft.points[1]); ctx.strokeRect(a, b, e - a, f - b); ctx.fillText(ft.label || "", a, b - 2); }
-      else if (ft.kind === "polygon") { poly(ctx, ft.points, true); ctx.stroke(); }
+      else if (ft.kind === "polygon") {
+        poly(ctx, ft.points, true);
+        if (ft.fill) { ctx.save(); ctx.fillStyle = ft.fill; ctx.fill(); ctx.restore(); }
+        ctx.stroke();
+      }
       else { const [a, b] = toCanvas(ft.points[0]); ctx.fillRect(a - 2, b - 2, 4, 4); }
     }
   }
