@@ -278,3 +278,65 @@ def test_direct_mode_flies_roll_pitch_yaw_rate_thrust_through_offboard_attitude(
         assert rolled, "MAVLink never reported the direct-mode roll"
         assert any(m.custom_mode == 6 << 16 for m in peer.messages("HEARTBEAT", component=1))
     assert dash.alive
+
+
+def test_websocket_from_another_web_origin_is_refused(dash: SitlProcess) -> None:
+    """Cross-site WebSocket hijacking: a page from another site open in the same browser cannot steer."""
+    base = _url(dash)
+    host = base.split("://", 1)[1]
+
+    async def run() -> None:
+        async with aiohttp.ClientSession() as s:
+            for path in ("/ws", "/ws/vac"):
+                with pytest.raises(aiohttp.WSServerHandshakeError) as err:
+                    await s.ws_connect(f"{base}{path}", headers={"Origin": "http://evil.example"})
+                assert err.value.status == 403
+            async with s.ws_connect(
+                f"{base}/ws", headers={"Origin": f"http://{host}"}
+            ) as ws:  # the page itself
+                assert (await _next(ws, "hello"))["role"] == "read-only"
+
+    asyncio.run(run())
+
+
+def test_altitude_mode_throttle_climbs_and_centred_holds_as_manual_control_does(dash: SitlProcess) -> None:
+    base = _url(dash)
+
+    async def run() -> None:
+        async with aiohttp.ClientSession() as s, s.ws_connect(f"{base}/ws") as ws:
+            await _next(ws, "hello")
+            await ws.send_str(json.dumps({"t": "take_control"}))
+            await _next(ws, "role")
+            # throttle high on the ground: arming refused with PX4's reason, as over MANUAL_CONTROL
+            await ws.send_str(json.dumps({"t": "cmd", "id": 1, "cmd": "mode", "mode": "ALTCTL"}))
+            assert (await _next(ws, "ack", pred=lambda m: m["id"] == 1))["ok"]
+            await ws.send_str(json.dumps({"t": "sticks", "x": 0.0, "y": 0.0, "z": 0.9, "r": 0.0}))
+            await ws.send_str(json.dumps({"t": "cmd", "id": 2, "cmd": "arm"}))
+            ack = await _next(ws, "ack", pred=lambda m: m["id"] == 2)
+            assert not ack["ok"] and ack["reason"] == "Arming denied: throttle above center"
+            await ws.send_str(json.dumps({"t": "sticks", "x": 0.0, "y": 0.0, "z": 0.5, "r": 0.0}))
+            await ws.send_str(json.dumps({"t": "cmd", "id": 3, "cmd": "arm"}))
+            assert (await _next(ws, "ack", pred=lambda m: m["id"] == 3))["ok"]
+            t0 = time.monotonic()
+            st = await _state(s, base)
+            while time.monotonic() - t0 < 20 and st["alt_agl_m"] < 3.0:  # throttle up: climb
+                await ws.send_str(json.dumps({"t": "sticks", "x": 0.0, "y": 0.0, "z": 1.0, "r": 0.0}))
+                await asyncio.sleep(0.05)
+                st = await _state(s, base)
+            assert st["alt_agl_m"] >= 3.0 and st["mode"] == "ALTCTL", st
+            for _ in range(60):  # centred throttle: altitude hold
+                await ws.send_str(json.dumps({"t": "sticks", "x": 0.0, "y": 0.0, "z": 0.5, "r": 0.0}))
+                await asyncio.sleep(0.05)
+                st = await _state(s, base)
+                if abs(st["vertical_speed_m_s"]) < 0.1:
+                    break
+            alt = st["alt_agl_m"]
+            st = await _wait_state(
+                s, base, lambda x: x["sim_time_s"] > st["sim_time_s"] + 2.0, 10, "2 s of sim"
+            )
+            assert abs(st["alt_agl_m"] - alt) < 0.5 and st["armed"]
+            await ws.send_str(json.dumps({"t": "cmd", "id": 4, "cmd": "mode", "mode": "STABILIZED"}))
+            assert (await _next(ws, "ack", pred=lambda m: m["id"] == 4))["ok"]
+
+    asyncio.run(run())
+    assert dash.alive

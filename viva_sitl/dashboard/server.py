@@ -27,6 +27,7 @@ from collections.abc import Sequence
 from dataclasses import asdict
 from importlib import resources
 from typing import Any
+from urllib.parse import urlsplit
 
 from aiohttp import WSMsgType, web
 
@@ -456,7 +457,16 @@ class Dashboard:
         self._next_id += 1
         return cid
 
+    @staticmethod
+    def _check_origin(request: web.Request) -> None:
+        """Browsers send Origin on WebSocket upgrades: only this page's own origin may connect (another web site
+        open in the same browser must not be able to arm or steer the vehicle). Programs send no Origin."""
+        origin = request.headers.get("Origin")
+        if origin is not None and urlsplit(origin).netloc.lower() != request.host.lower():
+            raise web.HTTPForbidden(text=f"dashboard: WebSocket from origin {origin[:80]!r} refused")
+
     async def _ws(self, request: web.Request) -> web.WebSocketResponse:
+        self._check_origin(request)
         ws = web.WebSocketResponse(max_msg_size=MAX_WS_MESSAGE_BYTES, heartbeat=10.0)
         await ws.prepare(request)
         client = _Client(self._new_id(), ws)
@@ -531,6 +541,7 @@ class Dashboard:
             self._bad(client, f"unknown message type {kind[:40]!r}")
 
     async def _ws_vac(self, request: web.Request) -> web.WebSocketResponse:
+        self._check_origin(request)
         ws = web.WebSocketResponse(max_msg_size=MAX_WS_MESSAGE_BYTES, heartbeat=10.0)
         await ws.prepare(request)
         client = _Client(self._new_id(), ws)
