@@ -379,17 +379,16 @@ class Dashboard:
         while True:
             try:
                 now = time.monotonic()
-                if self._clients or now >= self._trail_next_s:
-                    snap = self.snapshot()
-                    if now >= self._trail_next_s:
-                        self._trail_next_s = now + TRAIL_PERIOD_S
-                        vx, vy = snap["vehicle_px"]
-                        if not self.trail or math.hypot(vx - self.trail[-1][0], vy - self.trail[-1][1]) > 0.5:
-                            self.trail.append((round(vx, 1), round(vy, 1)))
-                    if self._clients:
-                        msg = json.dumps(snap)
-                        for client in self._clients.values():
-                            client.offer(msg)
+                if now >= self._trail_next_s:  # the trail is kept with no page open (cheap: one point)
+                    self._trail_next_s = now + TRAIL_PERIOD_S
+                    pos = self.app.state.pos_ned_m
+                    vx, vy = self.geometry.ned_to_px(float(pos[0]), float(pos[1]))
+                    if not self.trail or math.hypot(vx - self.trail[-1][0], vy - self.trail[-1][1]) > 0.5:
+                        self.trail.append((round(vx, 1), round(vy, 1)))
+                if self._clients:  # the full snapshot only for pages
+                    msg = json.dumps(self.snapshot())
+                    for client in self._clients.values():
+                        client.offer(msg)
             except Exception:
                 log.exception("dashboard telemetry failed")
             await asyncio.sleep(period)
@@ -400,9 +399,12 @@ class Dashboard:
                 self.controller.tick(time.monotonic())
             except Exception:
                 log.exception("dashboard control feed failed")
-            # several MANUAL inputs per COM_RC_LOSS_T (0.5 s of sim time) at any speed factor
-            speed = max(1.0, float(self.app.config.speed))
-            await asyncio.sleep(min(0.05, 0.1 / speed))
+            if not self.controller.pilot.feeding:  # nobody steers: nothing to feed, wake rarely
+                await asyncio.sleep(0.1)
+                continue
+            # stick expiry and direct-mode yaw are updated often; the autopilot gets the sticks at every physics
+            # step anyway (before_step)
+            await asyncio.sleep(0.05)
 
     # --- VAC --------------------------------------------------------------------------------------
     def _publish_vac(self, msg: bytes, frame_counter: int) -> None:
