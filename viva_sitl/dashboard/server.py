@@ -482,7 +482,7 @@ class Dashboard:
                 if msg.type == WSMsgType.TEXT:
                     await self._on_page_message(client, msg.data)
                 elif msg.type == WSMsgType.BINARY:
-                    self._bad(client, "binary messages are not understood")
+                    await self._bad(client, "binary messages are not understood")
                 elif msg.type == WSMsgType.ERROR:
                     break
         finally:
@@ -496,9 +496,10 @@ class Dashboard:
     def _role(self, cid: int) -> str:
         return "pilot" if self.controller.is_pilot(cid) else "read-only"
 
-    def _bad(self, client: _Client, reason: str) -> None:
+    async def _bad(self, client: _Client, reason: str) -> None:
+        """Count and answer a message that was ignored (sent at once: the telemetry slot must not replace it)."""
         self.bad_messages += 1
-        client.offer(json.dumps({"t": "error", "reason": reason}))
+        await self._send_quiet(client, json.dumps({"t": "error", "reason": reason}))
 
     async def _reply(self, client: _Client, payload: dict[str, Any]) -> None:
         await self._send_quiet(client, json.dumps(payload))
@@ -508,18 +509,18 @@ class Dashboard:
             msg = json.loads(data)
         except ValueError:
             self.controller.stats.malformed += 1
-            self._bad(client, "not JSON")
+            await self._bad(client, "not JSON")
             return
         if not isinstance(msg, dict) or not isinstance(msg.get("t"), str):
             self.controller.stats.malformed += 1
-            self._bad(client, 'a message is a JSON object with a string "t"')
+            await self._bad(client, 'a message is a JSON object with a string "t"')
             return
         kind = msg["t"]
         ctl = self.controller
         if kind == "sticks":
             reason = ctl.sticks(client.id, msg, time.monotonic())
             if reason is not None:
-                self._bad(client, reason)
+                await self._bad(client, reason)
         elif kind == "cmd":
             outcome = ctl.command(client.id, msg)
             mid = msg.get("id")
@@ -540,7 +541,7 @@ class Dashboard:
             await self._reply(client, {"t": "pong", "wall_time_s": time.time()})
         else:
             ctl.stats.malformed += 1
-            self._bad(client, f"unknown message type {kind[:40]!r}")
+            await self._bad(client, f"unknown message type {kind[:40]!r}")
 
     async def _ws_vac(self, request: web.Request) -> web.WebSocketResponse:
         self._check_origin(request)
