@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import shutil
 import tempfile
 from collections.abc import Iterator
@@ -61,8 +62,18 @@ def chromium() -> Iterator[Any]:
             driver.quit()
 
 
+ARTIFACTS_ENV = "VIVA_TEST_ARTIFACTS"  # CI: also copy screenshots here (pytest's tmp dirs are rotated)
+
+
 def screenshot(driver: Any, directory: Path, name: str) -> Path:
+    """Save a PNG under `directory` (the viva-sitl run directory) and, when $VIVA_TEST_ARTIFACTS is set, a copy
+    there under the run directory's name."""
     directory.mkdir(parents=True, exist_ok=True)
     path = directory / f"{name}.png"
     assert driver.save_screenshot(str(path)), f"screenshot {path} failed"
+    extra = os.environ.get(ARTIFACTS_ENV)
+    if extra:
+        dest = Path(extra) / directory.parent.parent.name / directory.parent.name
+        dest.mkdir(parents=True, exist_ok=True)
+        shutil.copy2(path, dest / path.name)
     return path
