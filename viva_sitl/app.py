@@ -18,12 +18,14 @@ import signal
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 import cv2
 
 from viva_sitl.autopilot import Autopilot, ParamStore
 from viva_sitl.clock import RealTimePacer, run_paced
 from viva_sitl.config import ConfigError, SimConfig
+from viva_sitl.dashboard.config import DashboardConfig
 from viva_sitl.dynamics import EavState
 from viva_sitl.frame import RenderedFrame
 from viva_sitl.geo import GeoOrigin, home_from_env
@@ -38,7 +40,14 @@ log = logging.getLogger("viva_sitl.app")
 class SitlApp:
     """One simulated vehicle: satisfies viva_sitl.mavlink's VehicleLink protocol."""
 
-    def __init__(self, config: SimConfig, *, video: bool = True, run_dir: Path | None = None) -> None:
+    def __init__(
+        self,
+        config: SimConfig,
+        *,
+        video: bool = True,
+        run_dir: Path | None = None,
+        dashboard: DashboardConfig | None = None,
+    ) -> None:
         self.config = config
         self.vehicle = Vehicle(config)
         self.sim: Simulator = self.vehicle.sim
@@ -50,10 +59,26 @@ class SitlApp:
         self.video: VideoPipeline | None = None
         self.scheduler: FrameScheduler | None = None
         self.last_frame: RenderedFrame | None = None
+        # --- dashboard (viva_sitl/dashboard): construction ---------------------------------------------
+        self.dashboard: Any = None  # viva_sitl.dashboard.server.Dashboard when enabled
+        self.dashboard_note = ""  # why there is none, for the ready line
+        dash_cfg = dashboard if dashboard is not None else DashboardConfig(enabled=False)
+        if dash_cfg.enabled:
+            try:
+                from viva_sitl.dashboard.server import Dashboard
+            except ImportError:
+                self.dashboard_note = "off (aiohttp missing: pip install 'viva-sitl[dashboard]')"
+                log.warning("dashboard %s", self.dashboard_note)
+            else:
+                self.dashboard = Dashboard(self, dash_cfg)
+        # --- end dashboard ----------------------------------------------------------------------------
         if video:
             self.run_dir.mkdir(parents=True, exist_ok=True)
             vcfg = dataclasses.replace(config.video, sdp_dir=str(self.run_dir))
-            self.video = VideoPipeline(vcfg, config.camera.width_px, config.camera.height_px)
+            extra = (self.dashboard.vac,) if self.dashboard is not None else ()
+            self.video = VideoPipeline(
+                vcfg, config.camera.width_px, config.camera.height_px, extra_outputs=extra
+            )
             self.scheduler = FrameScheduler(
                 self._render_tick, self.video.submit, config.video.fps, name="viva-render"
             )
@@ -128,6 +153,8 @@ class SitlApp:
 
     # --- loops ---------------------------------------------------------------------------
     def _step_once(self) -> None:
+        if self.dashboard is not None:  # its sticks reach the autopilot at every step (an RC receiver)
+            self.dashboard.before_step(self.vehicle.time_s)
         self.vehicle.step(1)
 
     def _after_batch(self) -> None:
@@ -141,6 +168,9 @@ class SitlApp:
         if self.scheduler is not None:
             # First render decodes/generates the footage frame and builds caches: do it before we are "ready".
             await asyncio.get_running_loop().run_in_executor(None, self._render_tick, -1)
+        # dashboard: start (first: a busy --dashboard-port fails before anything runs)
+        if self.dashboard is not None:
+            await self.dashboard.start()
         await self.endpoint.start()
         if self.video is not None and self.scheduler is not None:
             self.video.start()
@@ -160,6 +190,8 @@ class SitlApp:
             self._physics_task.cancel()
             with contextlib.suppress(asyncio.CancelledError):
                 await self._physics_task
+            if self.dashboard is not None:  # dashboard: stop
+                await self.dashboard.stop()
             await self.endpoint.stop()
             if self.scheduler is not None:
                 self.scheduler.stop()
@@ -182,6 +214,10 @@ class SitlApp:
                 parts.append(f"{kind} rtp sdp {sdp.resolve()}")
             if self.video.frame_socket_endpoint:
                 parts.append(f"frames {self.video.frame_socket_endpoint}")
+        if self.dashboard is not None:  # dashboard: ready-line part
+            parts.append(f"dashboard {self.dashboard.url}")
+        elif self.dashboard_note:
+            parts.append(f"dashboard {self.dashboard_note}")
         print(" | ".join(parts), flush=True)
 
     def _print_stats(self) -> None:
@@ -200,6 +236,8 @@ class SitlApp:
                 lost = render["late_skipped"] + video["dropped"]
                 stats["frames_lost_pct"] = round(100.0 * lost / due, 3) if due else 0.0
         stats["mavlink"] = self.endpoint.stats
+        if self.dashboard is not None:
+            stats["dashboard"] = self.dashboard.stats()
         print(f"viva-sitl stopped: {json.dumps(stats, default=str)}", file=sys.stderr, flush=True)
 
 
@@ -249,9 +287,24 @@ def config_from_args(args: argparse.Namespace) -> SimConfig:
     return dataclasses.replace(cfg, mavlink=mav, video=video, **sim_updates)  # type: ignore[arg-type]
 
 
+def dashboard_config_from_args(args: argparse.Namespace, instance: int) -> DashboardConfig:
+    """--dashboard-port / --no-dashboard (the dashboard listens where --listen says, loopback by default)."""
+    return DashboardConfig(
+        enabled=not getattr(args, "no_dashboard", False),
+        host=getattr(args, "listen", None) or "127.0.0.1",
+        port=getattr(args, "dashboard_port", None),
+        instance=instance,
+    )
+
+
 def run_from_args(args: argparse.Namespace) -> int:
     cfg = config_from_args(args)
-    app = SitlApp(cfg, video=not args.no_video, run_dir=Path(args.run_dir) if args.run_dir else None)
+    app = SitlApp(
+        cfg,
+        video=not args.no_video,
+        run_dir=Path(args.run_dir) if args.run_dir else None,
+        dashboard=dashboard_config_from_args(args, cfg.mavlink.instance),
+    )
 
     async def main() -> None:
         loop = asyncio.get_running_loop()
@@ -263,4 +316,4 @@ def run_from_args(args: argparse.Namespace) -> int:
     return 0
 
 
-__all__ = ["SitlApp", "config_from_args", "run_from_args"]
+__all__ = ["SitlApp", "config_from_args", "dashboard_config_from_args", "run_from_args"]

@@ -118,6 +118,12 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument(
         "--no-video", action="store_true", help="no rendering and no video outputs (MAVLink only)"
     )
+    run.add_argument(
+        "--dashboard-port",
+        type=_port,
+        help="web dashboard port (default 8080+instance; when busy a free port is used; 0 = any free port)",
+    )
+    run.add_argument("--no-dashboard", action="store_true", help="do not serve the web dashboard")
     run.add_argument("--run-dir", help="where the SDP file, captures and logs go (default ./runs/<time>)")
 
     render = sub.add_parser("render", help="render one VAC frame at a pose")
@@ -183,6 +189,13 @@ def main(argv: list[str] | None = None) -> int:
     from viva_sitl.footage import FootageError
 
     try:
+        from viva_sitl.dashboard.server import DashboardError
+    except ImportError:  # aiohttp not installed: the dashboard is off, its error cannot happen
+
+        class DashboardError(ValueError):  # type: ignore[no-redef]
+            pass
+
+    try:
         if args.command == "render":
             return _cmd_render(args)
         if args.command == "footage":
@@ -193,7 +206,7 @@ def main(argv: list[str] | None = None) -> int:
             from viva_sitl.app import run_from_args
 
             return run_from_args(args)
-    except (ConfigError, FootageError) as exc:
+    except (ConfigError, FootageError, DashboardError) as exc:
         print(f"viva-sitl: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
