@@ -18,7 +18,6 @@ import signal
 import sys
 import time
 from pathlib import Path
-from typing import Any
 
 import cv2
 
@@ -26,6 +25,7 @@ from viva_sitl.autopilot import Autopilot, ParamStore
 from viva_sitl.clock import RealTimePacer, run_paced
 from viva_sitl.config import ConfigError, SimConfig
 from viva_sitl.dashboard.config import DashboardConfig
+from viva_sitl.dashboard.server import Dashboard
 from viva_sitl.dynamics import EavState
 from viva_sitl.frame import RenderedFrame
 from viva_sitl.geo import GeoOrigin, home_from_env
@@ -60,17 +60,11 @@ class SitlApp:
         self.scheduler: FrameScheduler | None = None
         self.last_frame: RenderedFrame | None = None
         # --- dashboard (viva_sitl/dashboard): construction ---------------------------------------------
-        self.dashboard: Any = None  # viva_sitl.dashboard.server.Dashboard when enabled
+        self.dashboard: Dashboard | None = None
         self.dashboard_note = ""  # why there is none, for the ready line
         dash_cfg = dashboard if dashboard is not None else DashboardConfig(enabled=False)
         if dash_cfg.enabled:
-            try:
-                from viva_sitl.dashboard.server import Dashboard
-            except ImportError:
-                self.dashboard_note = "off (aiohttp missing: pip install 'viva-sitl[dashboard]')"
-                log.warning("dashboard %s", self.dashboard_note)
-            else:
-                self.dashboard = Dashboard(self, dash_cfg)
+            self.dashboard = Dashboard(self, dash_cfg)
         # --- end dashboard ----------------------------------------------------------------------------
         if video:
             self.run_dir.mkdir(parents=True, exist_ok=True)
