@@ -91,6 +91,7 @@ class Simulator:
         self._intrinsics_k: tuple[tuple[float, float, float], ...] = ()
         self._cam_pos_body_m = (0.0, 0.0, 0.0)
         self._region: RegionPyramid | None = None
+        self._plan_quad = np.zeros((0, 2))  # the last plan's footprint corners (level-0 px)
         self._footage_levels = footage_levels
         # footage level the last region render decoded (what prefetch decodes next)
         self._source_level_used = 0
@@ -203,6 +204,7 @@ class Simulator:
         corners = np.array([[0.0, 0.0, 1.0], [wv, 0.0, 1.0], [wv, hv, 1.0], [0.0, hv, 1.0]]) @ vac_to_src.T
         if np.any(corners[:, 2] <= _W_EPS) or not np.all(np.isfinite(corners)):
             return None  # the footprint is unbounded: the whole frame may be read
+        self._plan_quad = corners[:, :2] / corners[:, 2:]  # level-0 footprint of the VAC's corner pixels
         # level-0 pixel -> level-L pixel (edges aligned): u_L = (u_0 + 0.5) / 2^L - 0.5
         scale = 1.0 / (1 << level)
         u = (corners[:, 0] / corners[:, 2] + 0.5) * scale - 0.5
@@ -270,8 +272,12 @@ class Simulator:
                 lw, lh = region.sizes_px[lv]
                 lx0, ly0 = x0 >> lv, y0 >> lv
                 lx1, ly1 = min(lw, -(-x1 >> lv)), min(lh, -(-y1 >> lv))
-                if lx1 > lx0 and ly1 > ly0:
-                    region.fill_level(lv, lx0, ly0, self.footage.region(index, lv, lx0, ly0, lx1, ly1))
+                if lx1 > lx0 and ly1 > ly0:  # decoded tiles copied straight into the level's buffer
+                    out = region.level_buffer(lv, lx0, ly0, lx1, ly1)
+                    # only the tiles near the footprint polygon (a yawed view covers ~half its bounding box)
+                    quad = (self._plan_quad + 0.5) / (1 << lv) - 0.5
+                    self.footage.region(index, lv, lx0, ly0, lx1, ly1, out, quad, float(REGION_MARGIN_PX + 1))
+                    region.mark_filled(lv)
         region.key = key
         return region, level
 

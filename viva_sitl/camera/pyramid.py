@@ -170,6 +170,19 @@ class RegionPyramid(Sequence[U8]):
             buf = self._buffers[level] = np.zeros((lh, lw, self.channels), np.uint8)
         return buf
 
+    def level_buffer(self, level: int, lx0: int, ly0: int, lx1: int, ly1: int) -> U8:
+        """A writable view of level `level` pixels [ly0:ly1, lx0:lx1] to fill in place; `mark_filled` it after."""
+        lw, lh = self.sizes_px[level]
+        if not (0 <= lx0 < lx1 <= lw and 0 <= ly0 < ly1 <= lh):
+            raise ValueError(f"({lx0}, {ly0})-({lx1}, {ly1}) is outside level {level} ({lw}x{lh})")
+        return self._buffer(level)[ly0:ly1, lx0:lx1]
+
+    def mark_filled(self, level: int) -> None:
+        """Level `level` now holds data (filled through `level_buffer`)."""
+        if self.filled_level < 0 or level < self.filled_level:
+            self.filled_level = level
+        self.filled_levels.add(level)
+
     def fill_level(self, level: int, lx0: int, ly0: int, pixels_bgr: U8) -> None:
         """Paste `pixels_bgr`, pixels of level `level` itself (e.g. from tiles), at level pixel (lx0, ly0)."""
         check_image(pixels_bgr)

@@ -159,7 +159,7 @@ def encode_frame(
 class TileCache:
     """Read access to one tile cache folder (`<folder>/tiles`), with an LRU of decoded tiles."""
 
-    def __init__(self, folder: Path, cache_bytes: int = DEFAULT_CACHE_BYTES) -> None:
+    def __init__(self, folder: Path, cache_bytes: int = DEFAULT_CACHE_BYTES, decode_threads: int = 2) -> None:
         self.folder = Path(folder)
         self.dir = self.folder / TILES_SUBDIR
         self._rebuild = f"rebuild it with `viva-sitl footage ingest --tiles` (or delete {self.folder})"
@@ -210,6 +210,12 @@ class TileCache:
         self._lock = threading.Lock()
         self.tiles_decoded = 0  # statistics
         self.tile_hits = 0
+        # cv2.imdecode releases the GIL: misses of one region are decoded in parallel
+        self._pool = (
+            ThreadPoolExecutor(decode_threads, thread_name_prefix="viva-sitl-tile-decode")
+            if decode_threads > 1 and self.codec != "raw"
+            else None
+        )
 
     def _error(self, what: str) -> FootageError:
         return FootageError(f"tile cache {self.folder}: {what}; {self._rebuild}")
@@ -234,16 +240,17 @@ class TileCache:
     def lru_bytes(self) -> int:
         return self._lru_bytes
 
-    def tile(self, frame: int, level: int, tx: int, ty: int) -> U8:
-        """The decoded tile (read-only), checked against its length, CRC-32 and expected size."""
+    def _read(self, frame: int, level: int, tx: int, ty: int) -> U8 | bytes:
+        """The cached decoded tile, or its checked encoded bytes."""
         t = self.layout.tile_index(level, tx, ty)
-        key = (frame, t)
         with self._lock:
-            hit = self._lru.get(key)
+            hit = self._lru.get((frame, t))
             if hit is not None:
-                self._lru.move_to_end(key)
+                self._lru.move_to_end((frame, t))
                 self.tile_hits += 1
                 return hit
+            if not self._packs:
+                raise FootageError(f"tile cache {self.folder} is closed")
             rec = self.index[frame * self.layout.tiles_per_frame + t]
             length = int(rec["length"])
             f = self._packs[int(rec["pack"])]
@@ -254,13 +261,19 @@ class TileCache:
             raise self._error(f"{where}: pack truncated")
         if zlib.crc32(data) != int(rec["crc"]):
             raise self._error(f"{where}: checksum mismatch")
+        return data
+
+    def _decoded(self, frame: int, level: int, tx: int, ty: int, data: bytes) -> U8:
+        """Decode checked bytes, check the size, keep the tile in the LRU."""
         img = _decode(data, self.codec)
         lw, lh = self.layout.levels[level]
         ts = self.layout.tile_px
         want = (min(ts, lh - ty * ts), min(ts, lw - tx * ts), 3)
         if img is None or img.shape != want:
-            raise self._error(f"{where}: does not decode to a {want[1]}x{want[0]} image")
+            raise self._error(f"frame {frame} level {level} tile ({tx}, {ty}): does not decode to a "
+                              f"{want[1]}x{want[0]} image")  # fmt: skip
         img.setflags(write=False)
+        key = (frame, self.layout.tile_index(level, tx, ty))
         with self._lock:
             self.tiles_decoded += 1
             if key not in self._lru:
@@ -271,26 +284,91 @@ class TileCache:
                 self._lru_bytes -= old.nbytes
         return img
 
-    def region(self, frame: int, level: int, x0: int, y0: int, x1: int, y1: int, out: U8 | None = None) -> U8:
-        """Level `level` pixels [y0:y1, x0:x1] of frame `frame`, assembled from the tiles under them."""
+    def tile(self, frame: int, level: int, tx: int, ty: int) -> U8:
+        """The decoded tile (read-only), checked against its length, CRC-32 and expected size."""
+        got = self._read(frame, level, tx, ty)
+        return got if isinstance(got, np.ndarray) else self._decoded(frame, level, tx, ty, got)
+
+    def tiles_under(
+        self,
+        level: int,
+        x0: int,
+        y0: int,
+        x1: int,
+        y1: int,
+        quad: NDArray[np.float64] | None = None,
+        margin_px: float = 0.0,
+    ) -> list[tuple[int, int]]:
+        """(tx, ty) of the tiles of level `level` meeting [x0, x1) x [y0, y1); with `quad` (a convex polygon in
+        level pixel coordinates, e.g. the VAC footprint) only those within `margin_px` of it (separating axes)."""
+        ts = self.layout.tile_px
+        txs = np.arange(x0 // ts, (x1 - 1) // ts + 1)
+        tys = np.arange(y0 // ts, (y1 - 1) // ts + 1)
+        mx, my = np.meshgrid(txs, tys)
+        gx: NDArray[np.int64] = mx.ravel().astype(np.int64)
+        gy: NDArray[np.int64] = my.ravel().astype(np.int64)
+        if quad is not None and len(quad) >= 3:
+            # tile pixel centres span [t * ts, (t + 1) * ts - 1]; grown by the margin
+            rx0, ry0 = gx * ts - margin_px, gy * ts - margin_px
+            rx1, ry1 = (gx + 1) * ts - 1 + margin_px, (gy + 1) * ts - 1 + margin_px
+            keep = np.ones(gx.shape, bool)
+            q = np.asarray(quad, np.float64)
+            centre = q.mean(axis=0)
+            for i in range(len(q)):
+                e = q[(i + 1) % len(q)] - q[i]
+                n = np.array([e[1], -e[0]])
+                if np.dot(n, centre - q[i]) > 0:
+                    n = -n  # outward
+                h = float(np.max(q @ n))
+                lo = np.where(n[0] > 0, rx0, rx1) * n[0] + np.where(n[1] > 0, ry0, ry1) * n[1]
+                keep &= lo <= h + 1e-9
+            gx, gy = gx[keep], gy[keep]
+        return [(int(x), int(y)) for x, y in zip(gx, gy, strict=True)]
+
+    def region(
+        self,
+        frame: int,
+        level: int,
+        x0: int,
+        y0: int,
+        x1: int,
+        y1: int,
+        out: U8 | None = None,
+        quad: NDArray[np.float64] | None = None,
+        margin_px: float = 0.0,
+    ) -> U8:
+        """Level `level` pixels [y0:y1, x0:x1] of frame `frame`, assembled from the tiles under them (with `quad`:
+        only the tiles within `margin_px` of that polygon; the rest of `out` is left as it was). Tiles missing
+        from the LRU are decoded on `decode_threads` threads."""
         lw, lh = self.layout.levels[level]
         if not (0 <= x0 < x1 <= lw and 0 <= y0 < y1 <= lh):
             raise ValueError(f"region ({x0}, {y0})-({x1}, {y1}) outside level {level} ({lw}x{lh})")
         if out is None:
             out = np.empty((y1 - y0, x1 - x0, 3), np.uint8)
         ts = self.layout.tile_px
-        for ty in range(y0 // ts, (y1 - 1) // ts + 1):
-            for tx in range(x0 // ts, (x1 - 1) // ts + 1):
-                tile = self.tile(frame, level, tx, ty)
-                ax0, ay0 = tx * ts, ty * ts
-                sx0, sy0 = max(x0, ax0), max(y0, ay0)
-                sx1, sy1 = min(x1, ax0 + tile.shape[1]), min(y1, ay0 + tile.shape[0])
-                out[sy0 - y0 : sy1 - y0, sx0 - x0 : sx1 - x0] = tile[
-                    sy0 - ay0 : sy1 - ay0, sx0 - ax0 : sx1 - ax0
-                ]
+        todo = self.tiles_under(level, x0, y0, x1, y1, quad, margin_px)
+        got = [self._read(frame, level, tx, ty) for tx, ty in todo]
+        misses = [i for i, g in enumerate(got) if not isinstance(g, np.ndarray)]
+        if len(misses) > 1 and self._pool is not None:
+            decoded = list(
+                self._pool.map(lambda i: self._decoded(frame, level, *todo[i], got[i]), misses)  # type: ignore[arg-type]
+            )
+        else:
+            decoded = [self._decoded(frame, level, *todo[i], got[i]) for i in misses]  # type: ignore[arg-type]
+        for i, img in zip(misses, decoded, strict=True):
+            got[i] = img
+        for (tx, ty), tile in zip(todo, got, strict=True):
+            assert isinstance(tile, np.ndarray)
+            ax0, ay0 = tx * ts, ty * ts
+            sx0, sy0 = max(x0, ax0), max(y0, ay0)
+            sx1, sy1 = min(x1, ax0 + tile.shape[1]), min(y1, ay0 + tile.shape[0])
+            out[sy0 - y0 : sy1 - y0, sx0 - x0 : sx1 - x0] = tile[sy0 - ay0 : sy1 - ay0, sx0 - ax0 : sx1 - ax0]
         return out
 
     def close(self) -> None:
+        if self._pool is not None:
+            self._pool.shutdown(wait=True)
+            self._pool = None
         with self._lock:
             for f in self._packs:
                 f.close()
@@ -357,10 +435,22 @@ class TileSource(FootageSource):
             self._frame = (index, img)
         return img
 
-    def region(self, index: int, level: int, x0: int, y0: int, x1: int, y1: int, out: U8 | None = None) -> U8:
-        """Pixels [y0:y1, x0:x1] of pyramid level `level` of frame `index` (only the tiles under them decoded)."""
+    def region(
+        self,
+        index: int,
+        level: int,
+        x0: int,
+        y0: int,
+        x1: int,
+        y1: int,
+        out: U8 | None = None,
+        quad: NDArray[np.float64] | None = None,
+        margin_px: float = 0.0,
+    ) -> U8:
+        """Pixels [y0:y1, x0:x1] of pyramid level `level` of frame `index` (only the tiles under them decoded;
+        with `quad`, only those within `margin_px` of it: see `TileCache.region`)."""
         self._check_open()
-        return self.cache.region(int(index) % self.frame_count, level, x0, y0, x1, y1, out)
+        return self.cache.region(int(index) % self.frame_count, level, x0, y0, x1, y1, out, quad, margin_px)
 
     def prefetch(self, index: int, level: int = 0) -> None:
         """Nothing to do ahead: tiles are decoded on demand (kept for the VideoSource interface)."""
