@@ -78,13 +78,18 @@ def bench_steps(args: argparse.Namespace, clip: Path) -> dict[str, Any]:
             "ours_tiles_raw": core.Ours(tiles["raw"], a, paper=False, render=True),
         }
         runs: dict[str, list[float]] = {k: [] for k in ["ref", *variants]}
+        cpu: dict[str, list[float]] = {k: [] for k in ["ref", *variants]}  # CPU ms per step (all threads)
         loads = []
         try:
             for _ in range(args.rounds):
                 if ref is not None:
-                    runs["ref"].append(ref.run()[0])
+                    r = ref.run()
+                    runs["ref"].append(r[0])
+                    cpu["ref"].append(r[1])
                 for name, o in variants.items():
-                    runs[name].append(o.run()[0])
+                    r = o.run()
+                    runs[name].append(r[0])
+                    cpu[name].append(r[1])
                 loads.append(loadavg())
         finally:
             if ref is not None:
@@ -92,9 +97,14 @@ def bench_steps(args: argparse.Namespace, clip: Path) -> dict[str, Any]:
             for o in variants.values():
                 o.close()
         med = {k: statistics.median(v) for k, v in runs.items() if v}
+        med_cpu = {k: statistics.median(v) for k, v in cpu.items() if v}
         out[f"z{z:g}"] = {
             "median_steps_per_s": med,
             "ratio_to_ref": {k: v / med["ref"] for k, v in med.items() if "ref" in med and k != "ref"},
+            "median_cpu_ms_per_step": med_cpu,
+            "cpu_ratio_to_ref": {
+                k: med_cpu["ref"] / v for k, v in med_cpu.items() if "ref" in med_cpu and k != "ref"
+            },
             "runs": runs,
             "loadavg": loads,
             "reference": why or "viva-safeland 0.2.0 DroneEnv.step",
@@ -196,7 +206,7 @@ def bench_aa(args: argparse.Namespace, clip: Path) -> dict[str, Any]:
     out: dict[str, Any] = {}
     why = None if args.no_ref else core.reference_available(args.ref_python)
     if why is None:
-        ref = core.Reference(args.ref_python, still, args, fixed=True)
+        ref = core.Reference(args.ref_python, still, replace_ns(args, z=50.0), fixed=True)
         try:
             out["ref_plain_warp"] = ref.ask("quality " + " ".join(str(z) for z in zs))
         finally:
@@ -236,16 +246,19 @@ def to_markdown(res: dict[str, Any]) -> str:
     if st:
         lines += [f"disk: {json.dumps({k: round(v, 1) for k, v in st['disk_mib'].items()})} MiB", ""]
         lines += [
-            "| z | variant | median steps/s | ratio to ref | load avg (per round) |",
-            "|---|---|---:|---:|---|",
+            "| z | variant | median steps/s | ratio to ref | median CPU ms/step | CPU ratio (ref / ours) "
+            "| load avg (per round) |",
+            "|---|---|---:|---:|---:|---:|---|",
         ]
         for key, v in st.items():
             if not key.startswith("z"):
                 continue
             for name, m in v["median_steps_per_s"].items():
                 ratio = v["ratio_to_ref"].get(name)
+                c = v.get("median_cpu_ms_per_step", {}).get(name, math.nan)
+                cr = v.get("cpu_ratio_to_ref", {}).get(name)
                 lines.append(f"| {key[1:]} m | {name} | {m:.1f} | {'' if ratio is None else f'{ratio:.2f}x'} | "
-                             f"{'; '.join(v['loadavg'])} |")  # fmt: skip
+                             f"{c:.2f} | {'' if cr is None else f'{cr:.2f}x'} | {'; '.join(v['loadavg'])} |")  # fmt: skip
         lines.append("")
     sc = res.get("scale")
     if sc:
@@ -288,6 +301,7 @@ def main() -> int:
     ap.add_argument("--cache-dir", type=Path, default=core.DEFAULT_CACHE)
     ap.add_argument("--frames", type=int, default=60, help="frames of the 4K clip")
     ap.add_argument("--scale-frames", type=int, default=30, help="frames of the 1080p/4K/8K scale clips")
+    ap.add_argument("--scale-steps", type=int, default=60, help="steps per timed run in the scale part")
     ap.add_argument("--rel-alt", type=float, default=core.DEFAULT_REL_ALT_M)
     ap.add_argument("--z", type=float, nargs="*", default=[50.0, 300.0])
     ap.add_argument("--yaw-deg", type=float, default=30.0)
@@ -310,20 +324,22 @@ def main() -> int:
         return 0
     clip = core.make_clip(args.cache_dir, args.frames, rel_alt_m=args.rel_alt)
     res: dict[str, Any] = {"machine": core.machine(), "command": " ".join(sys.argv)}
-    if "steps" in args.only:
-        res["steps"] = bench_steps(args, clip)
-    if "scale" in args.only:
-        res["scale"] = bench_scale(args)
-    if "mem" in args.only:
-        res["mem"] = bench_mem(args)
-    if "aa" in args.only:
-        res["aa"] = bench_aa(args, clip)
-    md = to_markdown(res)
-    print(md)
-    if args.markdown:
-        args.markdown.write_text(md, encoding="utf-8")
-    if args.json:
-        args.json.write_text(json.dumps(res, indent=1, default=str), encoding="utf-8")
+    parts = {
+        "steps": lambda: bench_steps(args, clip),
+        "aa": lambda: bench_aa(args, clip),
+        "mem": lambda: bench_mem(args),
+        "scale": lambda: bench_scale(replace_ns(args, steps=args.scale_steps)),
+    }
+    for name, run in parts.items():
+        if name not in args.only:
+            continue
+        res[name] = run()
+        md = to_markdown(res)  # written after each part: a later failure keeps what was measured
+        if args.markdown:
+            args.markdown.write_text(md, encoding="utf-8")
+        if args.json:
+            args.json.write_text(json.dumps(res, indent=1, default=str), encoding="utf-8")
+    print(to_markdown(res))
     return 0
 
 

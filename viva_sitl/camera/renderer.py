@@ -47,7 +47,8 @@ F64 = NDArray[np.float64]
 PyramidLike = LazyPyramid | Sequence[U8] | U8
 
 _W_EPS = 1e-9  # homogeneous w at or below this is treated as a ray at/above the horizon
-# Trilinear: added to log2(scale) (measured best of -0.25/-0.5/-0.75... on the interchange sweep, results_tiles.md)
+# Trilinear: added to log2(scale). 0 (textbook trilinear) scored below the plain warp between levels on the
+# interchange sweep; -0.5 is above it at every ratio (bench/results_tiles.md, section 4)
 TRILINEAR_LOD_OFFSET = -0.5
 
 
