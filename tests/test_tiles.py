@@ -313,3 +313,60 @@ def test_trilinear_beats_the_plain_warp_at_every_footprint_ratio() -> None:
     for rho, p_tri, _, p_plain in rows:
         assert p_tri >= p_plain, (rho, p_tri, p_plain)
     assert float(np.mean([r[1] - r[2] for r in rows])) > 0.5  # and better than one mip level on average
+
+
+def test_a_killed_ingest_process_resumes_on_rerun(tmp_path: Path) -> None:
+    """`viva-sitl footage ingest --tiles` SIGKILLed mid-way: the rerun continues after the last committed frame and
+    ends with the same cache as an uninterrupted build."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    frames = 24
+    clip = write_coded_clip(
+        tmp_path / "k.mp4", frames=frames, width_px=W, height_px=H, fps=25, gop=4, bframes=0
+    )
+    toml = clip.with_suffix(".toml")
+    toml.write_text(
+        f'name = "k"\nkind = "video"\npath = "{clip.name}"\nrecording_altitude_m = {ALT_M}\nhfov_deg = {HFOV}\n',
+        encoding="utf-8",
+    )
+    repo = Path(__file__).resolve().parents[1]
+    env = {**os.environ, "PYTHONPATH": str(repo)}
+
+    def cmd(out: Path) -> list[str]:
+        return [sys.executable, "-m", "viva_sitl", "footage", "ingest", str(toml), "--tiles", "--tile-codec", "png",
+                "--out", str(out), "--no-progress"]  # fmt: skip
+
+    out = tmp_path / "killed"
+    proc = subprocess.Popen(cmd(out), env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    progress = out / "tiles" / "progress.json"
+    deadline = time.monotonic() + 120.0
+    done = 0
+    while time.monotonic() < deadline and proc.poll() is None:
+        try:
+            done = int(json.loads(progress.read_text())["frames_done"])
+        except (OSError, ValueError, KeyError):
+            done = 0
+        if done >= 2 * COMMIT_FRAMES:
+            break
+        time.sleep(0.01)  # polling a file the other process writes (the condition is checked above)
+    assert proc.poll() is None, "the build ended before it could be killed"
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    assert 0 < done < frames and not (out / "footage.toml").exists()
+    with pytest.raises(FootageError, match="folder without footage.toml|not an ingest cache"):
+        open_footage(str(out))
+    r = subprocess.run(cmd(out), env=env, capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    assert f"tiled {frames} frames" in r.stdout and "resumed after frame" in r.stdout
+    fresh = subprocess.run(cmd(tmp_path / "fresh"), env=env, capture_output=True, text=True, timeout=300)
+    assert fresh.returncode == 0, fresh.stderr
+    for name in ("index.bin", "pack-000.bin"):
+        assert (out / "tiles" / name).read_bytes() == (tmp_path / "fresh" / "tiles" / name).read_bytes()
+    with open_footage(str(out)) as src, open_footage(str(clip), altitude_m=ALT_M, hfov_deg=HFOV) as video:
+        assert isinstance(src, TileSource)
+        for i in (0, done, frames - 1):
+            assert np.array_equal(src.frame(i), video.frame(i))
