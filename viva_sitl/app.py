@@ -28,6 +28,7 @@ from viva_sitl.dynamics import EavState
 from viva_sitl.frame import RenderedFrame
 from viva_sitl.geo import GeoOrigin
 from viva_sitl.mavlink import CameraInfo, CaptureResult, MavlinkEndpoint, StreamEncoding, VideoStreamSpec
+from viva_sitl.mavlink.endpoint import PortInUseError
 from viva_sitl.sim import Simulator
 from viva_sitl.video import FrameScheduler, VideoPipeline
 
@@ -58,7 +59,14 @@ class SitlApp:
             self.scheduler = FrameScheduler(
                 self._render_tick, self.video.submit, config.video.fps, name="viva-render"
             )
-        self.endpoint = MavlinkEndpoint(self, config.mavlink)
+        mav = config.mavlink
+        if (
+            mav.tlog and not mav.tlog_path
+        ):  # a .tlog of every run, in its run directory (as QGC logs every flight)
+            mav = dataclasses.replace(mav, tlog_path=str(self.run_dir / "telemetry.tlog"))
+        elif not mav.tlog:
+            mav = dataclasses.replace(mav, tlog_path=None)
+        self.endpoint = MavlinkEndpoint(self, mav)
         self._stopping = asyncio.Event()
         self._physics_task: asyncio.Task[None] | None = None
 
@@ -127,6 +135,7 @@ class SitlApp:
     def _step_once(self) -> None:
         state = self.sim.state
         self.sim.step(self.autopilot.update(state.time_s, state))
+        self.endpoint.on_sim_step()  # telemetry, heartbeats and MAVLink timers run on sim time
 
     def _after_batch(self) -> None:
         self.state_wall_time_s = time.time()
@@ -178,6 +187,8 @@ class SitlApp:
             f"mavlink api udp {api_host}:{api_port} -> {m.api_remote_host}:{m.api_remote_port_resolved}",
             f"gcs udp {gcs_host}:{gcs_port} -> {m.gcs_remote_host}:{m.gcs_remote_port}",
         ]
+        if self.endpoint.tlog_path:
+            parts.append(f"tlog {Path(self.endpoint.tlog_path).resolve()}")
         if self.video is not None:
             for kind, sdp in self.video.sdp_paths.items():
                 parts.append(f"{kind} rtp sdp {sdp.resolve()}")
@@ -201,6 +212,8 @@ class SitlApp:
                 lost = render["late_skipped"] + video["dropped"]
                 stats["frames_lost_pct"] = round(100.0 * lost / due, 3) if due else 0.0
         stats["mavlink"] = self.endpoint.stats
+        if self.endpoint.tlog_path:
+            stats["tlog"] = str(Path(self.endpoint.tlog_path).resolve())
         print(f"viva-sitl stopped: {json.dumps(stats, default=str)}", file=sys.stderr, flush=True)
 
 
@@ -222,7 +235,13 @@ def config_from_args(args: argparse.Namespace) -> SimConfig:
         "gcs_remote_port": args.gcs_port,
         "api_local_port": args.api_local_port,
         "gcs_local_port": args.gcs_local_port,
+        "tlog_path": getattr(args, "tlog", None),
+        "signing_key": getattr(args, "signing_key", None),
     }
+    if getattr(args, "no_tlog", False):
+        mav = dataclasses.replace(mav, tlog=False, tlog_path=None)
+    elif getattr(args, "tlog", None):
+        mav = dataclasses.replace(mav, tlog=True)
     mav = dataclasses.replace(mav, **{k: v for k, v in mav_updates.items() if v is not None})
     video = cfg.video.with_instance(mav.instance)
     video_updates = {
@@ -238,7 +257,11 @@ def config_from_args(args: argparse.Namespace) -> SimConfig:
 
 
 def run_from_args(args: argparse.Namespace) -> int:
-    cfg = config_from_args(args)
+    try:
+        cfg = config_from_args(args)
+    except ValueError as exc:  # a command-line value a config section refuses (e.g. --instance 500)
+        print(f"viva-sitl: {exc}", file=sys.stderr)
+        return 2
     app = SitlApp(cfg, video=not args.no_video, run_dir=Path(args.run_dir) if args.run_dir else None)
 
     async def main() -> None:
@@ -247,7 +270,16 @@ def run_from_args(args: argparse.Namespace) -> int:
             loop.add_signal_handler(sig, app.stop)
         await app.run(duration_s=args.duration)
 
-    asyncio.run(main())
+    try:
+        asyncio.run(main())
+    except PortInUseError as exc:  # one line naming the port, no traceback
+        print(f"viva-sitl: {exc.strerror}", file=sys.stderr)
+        return 2
+    except ValueError as exc:
+        if "already in use" not in str(exc):
+            raise
+        print(f"viva-sitl: {exc} (run with --instance N, N = 1, 2, ...)", file=sys.stderr)
+        return 2
     return 0
 
 

@@ -85,6 +85,9 @@ class MinimalVehicle:
         self._rng = np.random.default_rng(seed)
         self._params = self.eav
         self._task: asyncio.Task[None] | None = None
+        self.step_hooks: list[
+            Callable[[], None]
+        ] = []  # called after every step (MavlinkEndpoint.on_sim_step)
 
     @property
     def time_s(self) -> float:
@@ -94,6 +97,8 @@ class MinimalVehicle:
         cmd = self.autopilot.update(self.state.time_s, self.state)
         self.state = step(self.state, cmd, self._params, self._rng)
         self.steps += 1
+        for hook in self.step_hooks:
+            hook()
 
     def _after_batch(self) -> None:
         self._params = self.autopilot.eav_params()
@@ -142,6 +147,7 @@ class VehicleThread:
         self._stop = asyncio.Event()
         self.vehicle = MinimalVehicle(speed=self.speed, camera=self.camera)
         self.endpoint = MavlinkEndpoint(self.vehicle, self.config)
+        self.vehicle.step_hooks.append(self.endpoint.on_sim_step)
         self.vehicle.start()
         await self.endpoint.start()
         self._ready.set()
@@ -315,6 +321,8 @@ async def _main(args: argparse.Namespace) -> dict[str, object]:
         **{k: v for k, v in updates.items() if v is not None},  # type: ignore[arg-type]
     )
     endpoint = None if args.no_endpoint else MavlinkEndpoint(vehicle, config)
+    if endpoint is not None:
+        vehicle.step_hooks.append(endpoint.on_sim_step)
     stop = asyncio.Event()
     loop = asyncio.get_running_loop()
     for sig in (signal.SIGINT, signal.SIGTERM):
