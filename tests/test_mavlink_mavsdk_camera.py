@@ -9,6 +9,7 @@ classic gRPC API (`mavsdk_grpc`, run as a subprocess: its mavsdk_server outlives
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import json
 import math
 import socket
@@ -57,7 +58,7 @@ def test_mavsdk_native_camera_gets_stream_uri_and_capture_info(tmp_path: Path) -
     camera = SnapshotCamera(tmp_path / "captures")
     cfg = MavlinkConfig(api_remote_port=port, gcs_remote_port=0, api_local_port=0, gcs_local_port=0)
 
-    async def scenario() -> tuple[Any, Any, float]:
+    async def scenario() -> tuple[Any, Any, float, int]:
         config = Configuration.create_with_component_type(ComponentType.GROUND_STATION)
         async with Mavsdk(config) as mavsdk:
             await mavsdk.add_any_connection(f"udpin://127.0.0.1:{port}")
@@ -73,22 +74,37 @@ def test_mavsdk_native_camera_gets_stream_uri_and_capture_info(tmp_path: Path) -
                 URI_DEADLINE_S,
             )
             uri_after_s = loop.time() - t0
-            captures = cam.subscribe_capture_info()
-            await cam.take_photo(100)
-            info = await _first(captures, lambda c: True, 10.0)
-            return update, info, uri_after_s
+            # the subscription starts some time after the generator first runs, with no signal, and a capture before
+            # that is not replayed (MAVSDK notifies the subscribers of the moment): photos until one is seen
+            got: asyncio.Queue[Any] = asyncio.Queue()
+
+            async def consume() -> None:
+                async for c in cam.subscribe_capture_info():
+                    got.put_nowait(c)
+
+            consumer = asyncio.ensure_future(consume())
+            info, taken = None, 0
+            while info is None and taken < 5:
+                await cam.take_photo(100)
+                taken += 1
+                with contextlib.suppress(TimeoutError):
+                    info = await asyncio.wait_for(got.get(), 3.0)
+            consumer.cancel()
+            return update, info, uri_after_s, taken
 
     with VehicleThread(cfg, speed=1.0, camera=camera) as vt:
-        update, info, uri_after_s = asyncio.run(asyncio.wait_for(scenario(), 60.0))
+        update, info, uri_after_s, taken = asyncio.run(asyncio.wait_for(scenario(), 60.0))
         stats = vt.stats()
     settings = update.video_stream_info.settings
     assert update.component_id == 100
     assert settings.uri == str(STREAM_PORT)  # QGC's reading of an RTP/UDP stream: the port
     assert (settings.horizontal_resolution_pix, settings.vertical_resolution_pix) == (1280, 720)  # the spec's
     assert uri_after_s < URI_DEADLINE_S
-    assert info.is_success and info.index == 0 and info.component_id == 100
-    assert info.file_url.startswith("file://") and Path(info.file_url[len("file://") :]).is_file()
-    assert camera.captured == [0]
+    assert info is not None, f"no capture feedback after {taken} photos"
+    assert info.is_success and 0 <= info.index < taken and info.component_id == 100
+    assert info.file_url == f"file://{tmp_path / 'captures' / f'img_{info.index:05d}.pgm'}"
+    assert Path(info.file_url[len("file://") :]).is_file()
+    assert camera.captured == list(range(taken))
     # the camera's attitude: a nadir camera on a level vehicle heading north looks straight down (pitch -90 deg)
     q = info.attitude_quaternion
     assert (q.w, q.x, q.y, q.z) == pytest.approx((math.sqrt(0.5), 0.0, -math.sqrt(0.5), 0.0), abs=0.02)
@@ -121,12 +137,27 @@ GRPC_SCRIPT = textwrap.dedent(
             upd = await first(drone.camera.video_stream_info(), lambda u: bool(u.video_stream_info.settings.uri), 12.0)
             out["uri"] = upd.video_stream_info.settings.uri
             out["uri_after_s"] = loop.time() - t0
-            captures = drone.camera.capture_info()
-            await drone.camera.take_photo(100)
-            info = await first(captures, lambda c: True, 10.0)
+            # a gRPC subscription becomes active some time after the call, with no signal: a capture before that
+            # is not replayed to it (MAVSDK notifies the subscribers of the moment). So: photos until one is seen.
+            got = asyncio.Queue()
+
+            async def consume():
+                async for c in drone.camera.capture_info():
+                    got.put_nowait(c)
+
+            consumer = asyncio.ensure_future(consume())
+            info, taken = None, 0
+            while info is None and taken < 5:
+                await drone.camera.take_photo(100)
+                taken += 1
+                try:
+                    info = await asyncio.wait_for(got.get(), 3.0)
+                except asyncio.TimeoutError:
+                    pass
+            consumer.cancel()
             q = info.attitude_quaternion
             out["capture"] = {"ok": info.is_success, "index": info.index, "url": info.file_url,
-                              "q": [q.w, q.x, q.y, q.z]}
+                              "q": [q.w, q.x, q.y, q.z], "taken": taken}
         except Exception as exc:
             out["error"] = f"{type(exc).__name__}: {exc}"
         print("RESULT " + json.dumps(out), flush=True)
@@ -161,6 +192,7 @@ def test_mavsdk_grpc_camera_gets_stream_uri_and_capture_info(tmp_path: Path) -> 
     assert out["camera_ids"] == [100]
     assert out["uri"] == str(STREAM_PORT) and out["uri_after_s"] < URI_DEADLINE_S
     cap = out["capture"]
-    assert cap["ok"] and cap["index"] == 0 and Path(cap["url"][len("file://") :]).is_file()
+    assert cap["ok"] and 0 <= cap["index"] < cap["taken"] and Path(cap["url"][len("file://") :]).is_file()
+    assert cap["url"].endswith(f"img_{cap['index']:05d}.pgm")
     assert cap["q"] == pytest.approx([math.sqrt(0.5), 0.0, -math.sqrt(0.5), 0.0], abs=0.02)
-    assert camera.captured == [0]
+    assert camera.captured == list(range(cap["taken"]))

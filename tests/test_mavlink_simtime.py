@@ -9,6 +9,7 @@ from __future__ import annotations
 import struct
 import time
 from collections.abc import Callable, Iterator
+from pathlib import Path
 from typing import Any
 
 import pytest
@@ -16,7 +17,7 @@ from pymavlink.dialects.v20 import common as M
 
 from viva_sitl.autopilot import FlightMode
 from viva_sitl.mavlink import MavlinkConfig
-from viva_sitl.mavlink.selftest import MavClient, VehicleThread
+from viva_sitl.mavlink.selftest import MavClient, SnapshotCamera, VehicleThread
 
 SPEEDS = [1.0, 4.0]
 
@@ -108,6 +109,26 @@ def test_set_message_interval_is_per_sim_second(client: MavClient, speed: float)
         vt.stop()
     att_hz, _ = _rate_per_sim_s(window, "ATTITUDE")
     assert att_hz == pytest.approx(25.0, rel=0.04)
+
+
+@pytest.mark.parametrize("speed", SPEEDS)
+def test_interval_capture_is_per_sim_second(client: MavClient, speed: float, tmp_path: Path) -> None:
+    camera = SnapshotCamera(tmp_path / "captures")
+    with VehicleThread(_config(client), speed=speed, camera=camera) as vt:
+        client.target = vt.api
+        ack = client.command(
+            M.MAV_CMD_IMAGE_START_CAPTURE, 0, 0.5, 5, target_component=100
+        )  # every 0.5 s, 5 images
+        assert ack is not None and ack.result == M.MAV_RESULT_ACCEPTED
+        caps = []
+        deadline = time.monotonic() + 20.0
+        while len(caps) < 5 and time.monotonic() < deadline:
+            msg = client.wait_for("CAMERA_IMAGE_CAPTURED", 1.0)
+            if msg is not None:
+                caps.append(msg)
+    assert [c.image_index for c in caps] == [0, 1, 2, 3, 4]
+    gaps_s = [(b.time_boot_ms - a.time_boot_ms) / 1000.0 for a, b in zip(caps, caps[1:], strict=False)]
+    assert gaps_s == pytest.approx([0.5] * 4, abs=0.005)  # sim seconds (wall time would give 0.5 * speed)
 
 
 # --- failsafe timers ------------------------------------------------------------------------------------

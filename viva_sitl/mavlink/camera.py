@@ -237,8 +237,11 @@ class CameraComponent:
         self.statustext = statustext
         self.image_count = 0  # images captured so far (CAMERA_IMAGE_CAPTURED.image_index of the next one)
         self.captures_failed = 0
-        self._interval_task: asyncio.Task[None] | None = None
         self._interval_s = 0.0
+        self._interval_left = 0  # images still to take in the running interval capture (0: none running)
+        self.next_trigger_s = (
+            math.inf
+        )  # sim time of the next interval trigger (the endpoint calls on_sim_time)
         self._pending: set[asyncio.Task[None]] = set()
         self._captured: dict[int, MavMessage] = {}  # image_index -> CAMERA_IMAGE_CAPTURED (the latest ones)
         self._warned_info = False
@@ -283,7 +286,7 @@ class CameraComponent:
         )  # fmt: skip
 
     def capture_status(self) -> MavMessage:
-        interval = self._interval_task is not None and not self._interval_task.done()
+        interval = self._interval_left > 0
         return M.MAVLink_camera_capture_status_message(
             time_boot_ms(self.vehicle), 3 if interval else 0, 0, self._interval_s if interval else 0.0, 0,
             100_000.0, self.image_count, 0,
@@ -348,11 +351,13 @@ class CameraComponent:
         if msgid == M.MAVLINK_MSG_ID_VIDEO_STREAM_STATUS:  # + the stream information, for MAVSDK
             return self.video_stream_status(p2) + self.video_stream_information(p2)
         if msgid == M.MAVLINK_MSG_ID_CAMERA_IMAGE_CAPTURED:
-            # param2: the image index (MAVSDK re-requests the ones it missed); absent/NaN/-1 in practice: the latest
+            # param2: the image index (MAVSDK re-requests the ones it missed by index). NaN/negative: the latest;
+            # 0 is also what a client sends without an index, so 0 falls back to the latest when image 0 is gone.
             want = int(params[0]) if params and math.isfinite(params[0]) and params[0] >= 0 else -1
-            if want >= 0 and (params[0] != 0 or want in self._captured):
-                msg = self._captured.get(want)
-                return [msg] if msg is not None else None
+            if want in self._captured:
+                return [self._captured[want]]
+            if want > 0:
+                return None  # never taken (or long forgotten): refused
             return [self._captured[max(self._captured)]] if self._captured else None
         return None
 
@@ -409,14 +414,17 @@ class CameraComponent:
         interval = req.p2 if math.isfinite(req.p2) else 0.0
         total = int(req.p3) if math.isfinite(req.p3) and req.p3 >= 0 else 1
         if total == 1 or interval <= 0:
-            if self._interval_task is not None and not self._interval_task.done():
+            if self._interval_left > 0:
                 return Outcome(CommandResult.TEMPORARILY_REJECTED, "Camera: interval capture running")
             self._spawn(self._capture_once())
             return Outcome(CommandResult.ACCEPTED)
         self._stop_interval()
         self._interval_s = interval
         count = total if total > 0 else MAX_INTERVAL_CAPTURES  # 0 = until IMAGE_STOP_CAPTURE
-        self._interval_task = asyncio.get_running_loop().create_task(self._interval_loop(interval, count))
+        self._interval_left = count
+        self.next_trigger_s = float(
+            self.vehicle.time_s
+        )  # the first image at once, then every `interval` sim s
         return Outcome(CommandResult.ACCEPTED)
 
     def _spawn(self, coro: Coroutine[Any, Any, None]) -> None:
@@ -424,19 +432,28 @@ class CameraComponent:
         self._pending.add(task)
         task.add_done_callback(self._pending.discard)
 
-    async def _interval_loop(self, interval_s: float, count: int) -> None:
-        for _ in range(count):
-            await self._capture_once()
-            await asyncio.sleep(interval_s)
+    def on_sim_time(self, now_s: float) -> None:
+        """Interval capture on sim time (as every MAVLink timer): the endpoint calls this when `next_trigger_s` is
+        due. Each trigger is stamped with its sim time and runs on its own: a slow file write never delays the next."""
+        if self._interval_left <= 0 or now_s < self.next_trigger_s:
+            return
+        self._spawn(self._capture_once(time_boot_ms(self.vehicle)))
+        self._interval_left -= 1
+        self.next_trigger_s += self._interval_s
+        if self.next_trigger_s <= now_s:  # a long stall: no burst of catch-up images
+            self.next_trigger_s = now_s + self._interval_s
+        if self._interval_left <= 0:
+            self._stop_interval()
 
     def _stop_interval(self) -> None:
-        if self._interval_task is not None:
-            self._interval_task.cancel()
-            self._interval_task = None
+        self._interval_left = 0
+        self.next_trigger_s = math.inf
 
-    async def _capture_once(self) -> None:
+    async def _capture_once(self, trigger_ms: int | None = None) -> None:
         index = self.image_count
         self.image_count += 1
+        if trigger_ms is None:  # the shutter: when the capture was triggered (sim time)
+            trigger_ms = time_boot_ms(self.vehicle)
         try:
             result = await asyncio.to_thread(self.camera.capture_image, index)
         except Exception as exc:  # the camera failed: report a failed capture, keep the component alive
@@ -445,13 +462,13 @@ class CameraComponent:
             self.statustext(None, Severity.ERROR, f"Camera: capture failed: {exc}")
         if not result.ok:
             self.captures_failed += 1
-        msg = self.image_captured(index, result)
+        msg = self.image_captured(index, result, trigger_ms)
         self._captured[index] = msg
         while len(self._captured) > KEEP_CAPTURED_MESSAGES:
             del self._captured[min(self._captured)]
         self.out.broadcast(msg, Component.CAMERA)
 
-    def image_captured(self, index: int, result: CaptureResult) -> MavMessage:
+    def image_captured(self, index: int, result: CaptureResult, trigger_ms: int | None = None) -> MavMessage:
         meta = result.meta
         state = self.vehicle.state
         geo = self.vehicle.geo
@@ -476,7 +493,7 @@ class CameraComponent:
         wall = meta.wall_time_s if meta is not None else time.time()
         url = ("file://" + result.path) if result.ok and result.path else ""
         return M.MAVLink_camera_image_captured_message(
-            time_boot_ms(self.vehicle), int(wall * 1e6), 0,
+            time_boot_ms(self.vehicle) if trigger_ms is None else trigger_ms, int(wall * 1e6), 0,
             clamp_int(lat * 1e7, -900000000, 900000000), clamp_int(lon * 1e7, -1800000000, 1800000000),
             clamp_int(alt * 1000.0, -(2**31), 2**31 - 1), clamp_int((home_down - pos[2]) * 1000.0, -(2**31), 2**31 - 1),
             list(camera_quaternion_ned(att, cam_rot_body)), index, 1 if result.ok else 0, url.encode("utf-8", errors="replace")[:205],
@@ -484,11 +501,9 @@ class CameraComponent:
 
     async def stop(self) -> None:
         tasks = list(self._pending)
-        if self._interval_task is not None:
-            tasks.append(self._interval_task)
         for t in tasks:
             t.cancel()
         for t in tasks:
             with contextlib.suppress(asyncio.CancelledError, Exception):
                 await t
-        self._interval_task = None
+        self._stop_interval()

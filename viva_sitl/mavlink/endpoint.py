@@ -91,10 +91,10 @@ class MavlinkConfig:
     gcs_profile: StreamProfile = StreamProfile.ONBOARD
     rate_overrides: tuple[tuple[str, float], ...] = ()  # (("ATTITUDE", 50.0), ...) Hz for both links; 0 = off
     peer_timeout_s: float = (
-        10.0  # a peer silent this long stops receiving telemetry (the default remote never)
+        10.0  # sim s: a peer silent this long stops receiving telemetry (default remote: never)
     )
     mission_max_items: int = 1000
-    mission_retry_s: float = 0.5
+    mission_retry_s: float = 0.5  # sim s between mission-protocol retries
     mission_max_retries: int = 5
     tlog: bool = True  # the app records a .tlog (in the run directory unless tlog_path says where)
     tlog_path: str | None = None  # the endpoint records every packet sent/accepted here; None = no log
@@ -598,6 +598,9 @@ class MavlinkEndpoint:
         if tc == Component.CAMERA or (tc == 0 and self.camera is not None and is_camera_command(req)):
             if self.camera is not None:
                 self.camera.handle(origin, req)
+                self._next_service_s = min(
+                    self._next_service_s, self.camera.next_trigger_s
+                )  # interval capture
             else:
                 self._stats.ignored_messages += 1  # no camera component: nobody answers (as on a real bus)
             return
@@ -737,16 +740,22 @@ class MavlinkEndpoint:
         self._next_service_s = now
 
     def _service(self, now: float) -> None:
-        if now >= self._next_heartbeat_s:
-            self._send_heartbeats()
-            self._next_heartbeat_s = _advance(self._next_heartbeat_s, 1.0 / self.config.heartbeat_hz, now)
-        if now >= self._next_housekeeping_s:
+        heartbeat_due = now >= self._next_heartbeat_s
+        if heartbeat_due or now >= self._next_housekeeping_s:
+            # housekeeping before any heartbeat: the STATUSTEXT that explains a mode change (failsafe, ...) goes
+            # out before the first heartbeat that shows the new mode, as a client reading both expects
             try:
                 self._housekeeping()
             except Exception:
                 log.exception("housekeeping failed")
                 self._stats.handler_errors += 1
-            self._next_housekeeping_s = _advance(self._next_housekeeping_s, 1.0 / HOUSEKEEPING_HZ, now)
+            if now >= self._next_housekeeping_s:
+                self._next_housekeeping_s = _advance(self._next_housekeeping_s, 1.0 / HOUSEKEEPING_HZ, now)
+        if heartbeat_due:
+            self._send_heartbeats()
+            self._next_heartbeat_s = _advance(self._next_heartbeat_s, 1.0 / self.config.heartbeat_hz, now)
+        if self.camera is not None and now >= self.camera.next_trigger_s:
+            self.camera.on_sim_time(now)
         timeout = self.config.peer_timeout_s
         for link in self._links.values():
             due = link.streams.due(now)
@@ -769,6 +778,7 @@ class MavlinkEndpoint:
         self._next_service_s = min(
             self._next_heartbeat_s,
             self._next_housekeeping_s,
+            self.camera.next_trigger_s if self.camera is not None else math.inf,
             *(link.streams.next_due_s() for link in self._links.values()),
         )
 
