@@ -1,12 +1,20 @@
 """One clock: telemetry rates, SET_MESSAGE_INTERVAL, heartbeats and MAVLink-visible failsafe timers run on SIM time, so
-`--speed N` changes only the wall clock (as PX4 lockstep SITL). A real endpoint + vehicle over real UDP.
+`--speed N` changes only the wall clock (as PX4 lockstep SITL). A real endpoint + vehicle over real UDP: the rate tests
+run the vehicle in its own process (`python -m viva_sitl.mavlink.selftest`), so this client, reading 1000+ messages a
+wall second at 4x, never competes with it for the interpreter.
 
 Sim time is read from the messages themselves (ATTITUDE.time_boot_ms is the vehicle's simulation clock).
 """
 
 from __future__ import annotations
 
+import contextlib
+import json
+import os
+import signal
 import struct
+import subprocess
+import sys
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -14,6 +22,7 @@ from typing import Any
 
 import pytest
 from pymavlink.dialects.v20 import common as M
+from sitl_process import REPO_ROOT
 
 from viva_sitl.autopilot import FlightMode
 from viva_sitl.mavlink import MavlinkConfig
@@ -31,6 +40,27 @@ def client() -> Iterator[MavClient]:
     c = MavClient()
     yield c
     c.close()
+
+
+@contextlib.contextmanager
+def _vehicle_process(client: MavClient, speed: float) -> Iterator[subprocess.Popen[str]]:
+    cmd = [sys.executable, "-m", "viva_sitl.mavlink.selftest", "--speed", str(speed), "--api-remote-port",
+           str(client.port), "--gcs-remote-port", "0", "--api-local-port", "0", "--gcs-local-port", "0"]  # fmt: skip
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(REPO_ROOT), os.environ.get("PYTHONPATH", "")]))
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True, env=env)
+    try:
+        assert proc.stdout is not None
+        ready = json.loads(proc.stdout.readline() or "{}")
+        assert ready.get("ready"), "the selftest vehicle did not start"
+        client.target = (str(ready["api"][0]), int(ready["api"][1]))
+        yield proc
+    finally:
+        proc.send_signal(signal.SIGINT)
+        try:
+            proc.wait(10.0)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait(5.0)
 
 
 def _run(client: MavClient, speed: float) -> VehicleThread:
@@ -63,12 +93,10 @@ def _rate_per_sim_s(window: list[tuple[float, Any]], kind: str) -> tuple[float, 
 
 @pytest.mark.parametrize("speed", SPEEDS)
 def test_telemetry_rates_are_per_sim_second(client: MavClient, speed: float) -> None:
-    vt = _run(client, speed)
-    try:
+    with _vehicle_process(client, speed):
+        client.send(client.mav.heartbeat_encode(M.MAV_TYPE_GCS, M.MAV_AUTOPILOT_INVALID, 0, 0, 0))
         client.poll(0.3)  # let the link settle
         window = _collect_sim_span(client, 4000, 30.0)
-    finally:
-        vt.stop()
     att_hz, n_att = _rate_per_sim_s(window, "ATTITUDE")
     gpi_hz, _ = _rate_per_sim_s(window, "GLOBAL_POSITION_INT")
     lpn_hz, _ = _rate_per_sim_s(window, "LOCAL_POSITION_NED")
@@ -92,8 +120,7 @@ def test_telemetry_rates_are_per_sim_second(client: MavClient, speed: float) -> 
 
 @pytest.mark.parametrize("speed", SPEEDS)
 def test_set_message_interval_is_per_sim_second(client: MavClient, speed: float) -> None:
-    vt = _run(client, speed)
-    try:
+    with _vehicle_process(client, speed):
         client.poll(0.2)
         ack = client.command(M.MAV_CMD_SET_MESSAGE_INTERVAL, M.MAVLINK_MSG_ID_ATTITUDE, 40_000)  # 25 Hz
         assert ack is not None and ack.result == M.MAV_RESULT_ACCEPTED
@@ -105,8 +132,6 @@ def test_set_message_interval_is_per_sim_second(client: MavClient, speed: float)
         assert iv is not None and iv.message_id == M.MAVLINK_MSG_ID_ATTITUDE and iv.interval_us == 40_000
         client.poll(0.1)
         window = _collect_sim_span(client, 4000, 30.0)
-    finally:
-        vt.stop()
     att_hz, _ = _rate_per_sim_s(window, "ATTITUDE")
     assert att_hz == pytest.approx(25.0, rel=0.04)
 

@@ -53,7 +53,11 @@ def build_parser() -> argparse.ArgumentParser:
         "--footage", help="catalog name (synthetic, interchange, songdo-00003, ...) or a video/image path"
     )
     run.add_argument("--config", help="TOML config file (see configs/default.toml)")
-    run.add_argument("--speed", type=positive_float, help="sim seconds per wall second (default 1)")
+    run.add_argument(
+        "--speed",
+        type=positive_float,
+        help="sim seconds per wall second (default 1); MAVLink rates and timers are per sim second, as PX4 lockstep",
+    )
     run.add_argument("--seed", type=int, help="random seed (disturbances, sensor noise)")
     run.add_argument("--duration", type=positive_float, help="stop after this many wall-clock seconds")
     run.add_argument(
