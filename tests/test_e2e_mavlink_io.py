@@ -56,3 +56,19 @@ def test_no_tlog_writes_none(tmp_path: Path) -> None:
         assert " tlog " not in sitl.ready_line
     assert sitl.returncode == 0
     assert not list(tmp_path.rglob("*.tlog"))
+
+
+def test_unwritable_tlog_is_one_line(tmp_path: Path) -> None:
+    blocker = tmp_path / "not-a-dir"
+    blocker.write_text("a file where the tlog's directory should be")
+    run = subprocess.run(
+        [sys.executable, "-m", "viva_sitl", "run", "--footage", "synthetic", "--no-video", "--run-dir",
+         str(tmp_path / "run"), "--tlog", str(blocker / "x.tlog"), "--api-local-port", "0", "--gcs-local-port", "0"],
+        capture_output=True, text=True, timeout=120, env=_env(), cwd=tmp_path,
+    )  # fmt: skip
+    assert run.returncode == 2, run.stderr
+    lines = [ln for ln in run.stderr.splitlines() if ln.strip() and "INFO" not in ln]
+    assert len(lines) == 1 and lines[0].startswith(
+        f"viva-sitl: cannot create the tlog {blocker / 'x.tlog'}: "
+    )
+    assert "Traceback" not in run.stderr

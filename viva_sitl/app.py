@@ -28,7 +28,7 @@ from viva_sitl.dynamics import EavState
 from viva_sitl.frame import RenderedFrame
 from viva_sitl.geo import GeoOrigin
 from viva_sitl.mavlink import CameraInfo, CaptureResult, MavlinkEndpoint, StreamEncoding, VideoStreamSpec
-from viva_sitl.mavlink.endpoint import PortInUseError
+from viva_sitl.mavlink.endpoint import EndpointStartError
 from viva_sitl.sim import Simulator
 from viva_sitl.video import FrameScheduler, VideoPipeline
 
@@ -272,7 +272,7 @@ def run_from_args(args: argparse.Namespace) -> int:
 
     try:
         asyncio.run(main())
-    except PortInUseError as exc:  # one line naming the port, no traceback
+    except EndpointStartError as exc:  # one line naming the port (or the tlog), no traceback
         print(f"viva-sitl: {exc.strerror}", file=sys.stderr)
         return 2
     except ValueError as exc:

@@ -57,7 +57,14 @@ from viva_sitl.mavlink.signing import SIGN_CFG_NON_USB, SIGN_CFG_OFF, SigningSta
 from viva_sitl.mavlink.telemetry import LinkStreams, StreamProfile, TelemetryBuilder, message_id
 from viva_sitl.mavlink.tlog import TlogWriter
 
-__all__ = ["MavlinkConfig", "MavlinkEndpoint", "VehicleLink", "EndpointStats", "PortInUseError"]
+__all__ = [
+    "EndpointStartError",
+    "EndpointStats",
+    "MavlinkConfig",
+    "MavlinkEndpoint",
+    "PortInUseError",
+    "VehicleLink",
+]
 
 log = logging.getLogger(__name__)
 M = mavlink2
@@ -186,7 +193,11 @@ class EndpointStats:
     unsigned_rejected: int = 0  # signing on: frames without a valid signature, dropped (PX4: not handled)
 
 
-class PortInUseError(OSError):
+class EndpointStartError(OSError):
+    """The endpoint cannot start (a port it cannot bind, a .tlog it cannot create): `strerror` says why in one line."""
+
+
+class PortInUseError(EndpointStartError):
     """A MAVLink UDP port is taken (another viva-sitl or PX4 SITL instance): the message names it."""
 
 
@@ -390,7 +401,7 @@ class MavlinkEndpoint:
                             f"UDP port {local_port} ({kind.value} link) on {cfg.listen_host} is already in use "
                             f"(another viva-sitl or PX4 SITL?): run with --instance N (N = 1, 2, ...) or {flag}",
                         ) from None
-                    raise OSError(
+                    raise EndpointStartError(
                         exc.errno,
                         f"MAVLink endpoint cannot bind UDP {cfg.listen_host}:{local_port}: {exc.strerror or exc}",
                     ) from exc
@@ -409,7 +420,7 @@ class MavlinkEndpoint:
                 for link in self._links.values():
                     link.transport.close()
                 self._links.clear()
-                raise OSError(
+                raise EndpointStartError(
                     exc.errno, f"cannot create the tlog {cfg.tlog_path}: {exc.strerror or exc}"
                 ) from exc
         self._reset_schedule(self._now())
