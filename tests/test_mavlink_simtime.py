@@ -118,6 +118,26 @@ def test_telemetry_rates_are_per_sim_second(client: MavClient, speed: float) -> 
     assert (n_att - 1) / wall_s == pytest.approx(100.0 * speed, rel=0.2)  # 400 ATTITUDE per wall second at 4x
 
 
+def test_slow_simulation_still_heartbeats_once_a_wall_second(client: MavClient) -> None:
+    """At --speed 0.25 a 1 Hz sim-time heartbeat would come every 4 wall seconds, past MAVSDK's 3 s timeout: the
+    endpoint also heartbeats at least once a wall second."""
+    with VehicleThread(_config(client), speed=0.25) as vt:
+        client.target = vt.api
+        client.poll(0.5)
+        start = len(client.received)
+        t0 = time.monotonic()
+        client.poll(4.0)
+        wall_s = time.monotonic() - t0
+        window = client.received[start:]
+    hb_wall = [w for w, m in window if m.get_type() == "HEARTBEAT" and m.get_srcComponent() == 1]
+    att = [m for _, m in window if m.get_type() == "ATTITUDE"]
+    sim_s = (att[-1].time_boot_ms - att[0].time_boot_ms) / 1000.0
+    assert sim_s == pytest.approx(0.25 * wall_s, rel=0.25)  # the simulation did run slowly
+    assert len(hb_wall) >= 3 and max(b - a for a, b in zip(hb_wall, hb_wall[1:], strict=False)) < 1.5
+    att_hz, _ = _rate_per_sim_s(window, "ATTITUDE")
+    assert att_hz == pytest.approx(100.0, rel=0.05)  # still 100 per sim second
+
+
 @pytest.mark.parametrize("speed", SPEEDS)
 def test_set_message_interval_is_per_sim_second(client: MavClient, speed: float) -> None:
     with _vehicle_process(client, speed):
