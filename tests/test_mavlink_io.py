@@ -267,3 +267,31 @@ def test_camera_image_captured_by_index_and_stream_info_with_camera_information(
         assert ack is not None and ack.result != M.MAV_RESULT_ACCEPTED  # never taken
     assert again is not None and again.image_index == 1 and str(again.file_url).endswith("img_00001.pgm")
     assert camera.captured == [0, 1, 2]
+
+
+def test_version_encoding_as_px4() -> None:
+    from viva_sitl.mavlink.version import custom_version, encode_sw_version
+
+    assert encode_sw_version("1.15.2") == 0x010F02FF  # official release: type 255
+    assert encode_sw_version("0.1.0rc2") == 0x000100C0  # rc: 192
+    assert encode_sw_version("2.0.1b1") == 0x02000180  # beta: 128
+    assert encode_sw_version("2.0.1a3") == 0x02000140  # alpha: 64
+    assert encode_sw_version("0.2.0.dev5") == 0x00020000  # dev: 0
+    # PX4 copies the 64-bit number of the first 16 hex digits in little-endian order: QGC reads bytes 7..0
+    commit = "0123456789abcdef" + "0" * 24
+    assert custom_version(commit) == bytes([0xEF, 0xCD, 0xAB, 0x89, 0x67, 0x45, 0x23, 0x01])
+    assert custom_version(None) == bytes(8)
+
+
+def test_signing_key_from_hex_or_passphrase() -> None:
+    from viva_sitl.mavlink.signing import parse_key
+
+    assert parse_key(KEY_HEX) == bytes.fromhex(KEY_HEX)
+    assert parse_key("0x" + KEY_HEX.upper()) == bytes.fromhex(KEY_HEX)
+    assert (
+        parse_key("my passphrase") == hashlib.sha256(b"my passphrase").digest()
+    )  # MAVProxy's `signing setup`
+    with pytest.raises(ValueError, match="must not be empty"):
+        parse_key("   ")
+    with pytest.raises(ValueError, match="sign_cfg"):
+        MavlinkConfig(sign_cfg=3)
