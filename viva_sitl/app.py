@@ -60,9 +60,8 @@ class SitlApp:
                 self._render_tick, self.video.submit, config.video.fps, name="viva-render"
             )
         mav = config.mavlink
-        if (
-            mav.tlog and not mav.tlog_path
-        ):  # a .tlog of every run, in its run directory (as QGC logs every flight)
+        # a .tlog of every run, in its run directory (as QGroundControl logs every flight)
+        if mav.tlog and not mav.tlog_path:
             mav = dataclasses.replace(mav, tlog_path=str(self.run_dir / "telemetry.tlog"))
         elif not mav.tlog:
             mav = dataclasses.replace(mav, tlog_path=None)

@@ -68,9 +68,8 @@ class DatagramParser:
             if isinstance(msg, mavlink2.MAVLink_bad_data):
                 if msg.reason == "Bad prefix":
                     result.garbage_bytes += len(msg.data)
-                elif (
-                    msg.reason == "Invalid signature"
-                ):  # a whole, well-formed frame: skip it (index is past it)
+                elif msg.reason == "Invalid signature":
+                    # a whole, well-formed frame: skipped (the parser's index is already past it)
                     result.unsigned_rejected += 1
                 else:
                     result.bad_frames += 1
