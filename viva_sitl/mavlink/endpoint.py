@@ -768,6 +768,7 @@ class MavlinkEndpoint:
         if self.camera is not None and now >= self.camera.next_trigger_s:
             self.camera.on_sim_time(now)
         timeout = self.config.peer_timeout_s
+        built: dict[int, MavMessage | None] = {}  # one build per message and instant, shared by the links
         for link in self._links.values():
             due = link.streams.due(now)
             self._stats.telemetry_late += link.streams.skipped
@@ -778,12 +779,16 @@ class MavlinkEndpoint:
             if not targets:
                 continue  # nobody listens on this link: keep the schedule, skip the work
             for msgid in due:
-                try:
-                    msg = self.telemetry.build(msgid)
-                except Exception:
-                    log.exception("building telemetry message %d failed", msgid)
-                    self._stats.handler_errors += 1
-                    continue
+                if msgid in built:
+                    msg = built[msgid]
+                else:
+                    try:
+                        msg = built[msgid] = self.telemetry.build(msgid)
+                    except Exception:
+                        log.exception("building telemetry message %d failed", msgid)
+                        self._stats.handler_errors += 1
+                        built[msgid] = None
+                        continue
                 if msg is not None:
                     self._send(link, msg, Component.AUTOPILOT, targets)
         self._next_service_s = min(
