@@ -421,8 +421,12 @@ def test_h264_rtp_gstreamer_receiver(tmp_path: Path) -> None:
             sched = run_stream(pipe, counter_now)
             wait_until(lambda: pipe.stats()["outputs"]["h264_rtp"]["sent"] >= 60, 30.0, "60 frames sent")
             sched.stop()
-        # GStreamer has decoded (at least) what the test needs before it is interrupted
-        wait_until(lambda: raw.exists() and raw.stat().st_size >= 45 * W * H * 3, 10.0, "45 frames decoded")
+        # GStreamer has decoded (at least) what the test needs before it is interrupted (or it has exited)
+        wait_until(
+            lambda: proc.poll() is not None or (raw.exists() and raw.stat().st_size >= 45 * W * H * 3),
+            10.0,
+            "45 frames decoded",
+        )
     finally:
         proc.send_signal(signal.SIGINT)
         _, err = proc.communicate(timeout=10)
