@@ -171,7 +171,11 @@ def build_parser() -> argparse.ArgumentParser:
     render.add_argument("-o", "--output", required=True, help="output image (png/jpg)")
     _footage_scale_flags(render)
 
-    footage = sub.add_parser("footage", help="footage catalog: list | info | get | ingest", add_help=False)
+    footage = sub.add_parser(
+        "footage",
+        help="footage catalog and ground truth: list | info | get | ingest | show | annotate",
+        add_help=False,
+    )
     footage.add_argument("rest", nargs=argparse.REMAINDER)
     return parser
 
