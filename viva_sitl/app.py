@@ -25,8 +25,12 @@ from viva_sitl.autopilot import Autopilot, ParamStore
 from viva_sitl.clock import RealTimePacer, run_paced
 from viva_sitl.config import ConfigError, SimConfig
 from viva_sitl.dashboard.config import DashboardConfig
+from viva_sitl.dashboard.layers import world_layers
+from viva_sitl.dashboard.overview import LayerProvider
 from viva_sitl.dashboard.server import Dashboard
 from viva_sitl.dynamics import EavState
+from viva_sitl.footage import open_footage
+from viva_sitl.footage.loader import resolve_metadata
 from viva_sitl.frame import RenderedFrame
 from viva_sitl.geo import GeoOrigin, home_from_env
 from viva_sitl.mavlink import CameraInfo, CaptureResult, MavlinkEndpoint, StreamEncoding, VideoStreamSpec
@@ -34,6 +38,7 @@ from viva_sitl.mavlink.endpoint import EndpointStartError
 from viva_sitl.sim import Simulator
 from viva_sitl.vehicle import Vehicle
 from viva_sitl.video import FrameScheduler, VideoPipeline
+from viva_sitl.world import world_from_source
 
 log = logging.getLogger("viva_sitl.app")
 
@@ -172,6 +177,9 @@ class SitlApp:
             await asyncio.get_running_loop().run_in_executor(None, self._render_tick, -1)
         # dashboard: start (first: a busy --dashboard-port fails before anything runs)
         if self.dashboard is not None:
+            # the footage's ground truth (objects, risk map) as overview layers, built off the loop
+            for layer in await asyncio.get_running_loop().run_in_executor(None, self._world_layers):
+                self.dashboard.add_layer(layer)
             await self.dashboard.start()
         await self.endpoint.start()
         if self.video is not None and self.scheduler is not None:
@@ -201,6 +209,19 @@ class SitlApp:
                 self.video.stop()
             self.sim.close()
             self._print_stats()
+
+    def _world_layers(self) -> list[LayerProvider]:
+        """The dashboard's ground-truth layers for footage that has any (none, with a warning, when it fails)."""
+        cfg = self.config
+        try:
+            meta = resolve_metadata(cfg.footage)
+            with open_footage(cfg.footage, altitude_m=cfg.footage_alt_m, hfov_deg=cfg.footage_hfov_deg,
+                              gsd_m_per_px=cfg.footage_gsd_m_per_px) as src:  # fmt: skip
+                world = world_from_source(src, meta)
+        except Exception as exc:  # ground truth is an extra: the run goes on without it
+            log.warning("dashboard: no ground-truth layers (%s)", exc)
+            return []
+        return world_layers(world)
 
     def _print_ready(self) -> None:
         m = self.config.mavlink

@@ -119,7 +119,7 @@ class Dashboard:
         self.geometry = footage.geometry
         self.layers: list[LayerProvider] = [AnnotationLayer(footage), *layers]
         self.controller = Controller(
-            autopilot=app.autopilot,
+            get_autopilot=lambda: app.autopilot,
             sim_time_s=lambda: float(app.time_s),
             yaw_rad=lambda: float(app.state.yaw_rad),
             stick_timeout_s=config.stick_timeout_s,
@@ -253,21 +253,14 @@ class Dashboard:
     # --- telemetry ------------------------------------------------------------------------------
     def _links(self) -> list[dict[str, Any]]:
         endpoint = getattr(self.app, "endpoint", None)
-        links = getattr(endpoint, "_links", None)  # endpoint internals: peer -> last heard (loop time)
-        if not isinstance(links, dict):
+        if endpoint is None:
             return []
-        now = asyncio.get_running_loop().time()
-        out = []
-        for kind, link in links.items():
-            for addr, heard in list(getattr(link, "peers", {}).items()):
-                age = now - float(heard)
-                out.append({
-                    "link": str(getattr(kind, "value", kind)),
-                    "peer": f"{addr[0]}:{addr[1]}",
-                    "age_s": round(age, 1),
-                    "ok": age <= PEER_LOST_S,
-                })  # fmt: skip
-        return out
+        # ages are sim seconds (the endpoint's clock): a peer heard once a wall second is `speed` sim seconds apart
+        lost_s = PEER_LOST_S * max(1.0, float(self.app.config.speed))
+        return [
+            {"link": link, "peer": f"{addr[0]}:{addr[1]}", "age_s": round(age, 1), "ok": age <= lost_s}
+            for link, addr, age in endpoint.peers_heard()
+        ]
 
     def _refresh_slow_stats(self) -> None:
         now = time.monotonic()
@@ -329,6 +322,8 @@ class Dashboard:
         mode_name = DIRECT if (pilot.direct and mode == FlightMode.OFFBOARD) else mode.name
         layers = {}
         for layer in self.layers:
+            if getattr(layer, "static", False):  # the same at every time: sent once, in /api/info
+                continue
             try:
                 layers[layer.name] = layer.features(t, index)
             except Exception:  # a faulty provider must not take the HUD down
@@ -430,10 +425,22 @@ class Dashboard:
             "modes": list(SELECTABLE_MODES),
             "keys": [list(k) for k in KEYS_HELP],
             "layers": [layer.name for layer in self.layers],
+            "static_layers": self._static_layers(),
             "overview_max_px": self.config.overview_max_px,
             "trail": [list(p) for p in self.trail],
             "statustexts": list(self.statustexts),
         })  # fmt: skip
+
+    def _static_layers(self) -> dict[str, list[dict[str, Any]]]:
+        out: dict[str, list[dict[str, Any]]] = {}
+        for layer in self.layers:
+            if getattr(layer, "static", False):
+                try:
+                    out[layer.name] = layer.features(float(self.app.time_s), 0)
+                except Exception:
+                    log.exception("dashboard layer %s failed", layer.name)
+                    out[layer.name] = []
+        return out
 
     async def _state(self, request: web.Request) -> web.Response:
         return web.json_response(self.snapshot())

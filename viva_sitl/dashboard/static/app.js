@@ -152,21 +152,25 @@ function drawOverview() {
   ctx.lineWidth = 2; ctx.strokeStyle = "#e33"; // geofence: the footage edge
   poly(ctx, [[-0.5, -0.5], [F.width_px - 0.5, -0.5], [F.width_px - 0.5, F.height_px - 0.5], [-0.5, F.height_px - 0.5]], true); ctx.stroke();
   if (!s) return;
+  const drawn = [];
   for (const name of S.info.layers) {
     const box = document.querySelector(`input[data-layer="${name}"]`);
     if (!box || !box.checked) continue;
+    drawn.push(`${name}=${(s.layers[name] || S.info.static_layers[name] || []).length}`);
     ctx.strokeStyle = "#f0f"; ctx.fillStyle = "#f0f"; ctx.lineWidth = 1.5; ctx.font = "11px sans-serif";
-    for (const ft of s.layers[name] || []) {
+    for (const ft of s.layers[name] || S.info.static_layers[name] || []) {
       if (ft.color) { ctx.strokeStyle = ft.color; ctx.fillStyle = ft.color; }
       if (ft.kind === "box") { const [a, b] = toCanvas(ft.points[0]), [e, f] = toCanvas(ft.points[1]); ctx.strokeRect(a, b, e - a, f - b); ctx.fillText(ft.label || "", a, b - 2); }
       else if (ft.kind === "polygon") {
         poly(ctx, ft.points, true);
-        if (ft.fill) { ctx.save(); ctx.fillStyle = ft.fill; ctx.fill(); ctx.restore(); }
+        for (const hole of ft.holes || []) { hole.forEach((p, i) => { const [x, y] = toCanvas(p); if (i) ctx.lineTo(x, y); else ctx.moveTo(x, y); }); ctx.closePath(); }
+        if (ft.fill) { ctx.save(); ctx.fillStyle = ft.fill; ctx.fill("evenodd"); ctx.restore(); }
         ctx.stroke();
       }
       else { const [a, b] = toCanvas(ft.points[0]); ctx.fillRect(a - 2, b - 2, 4, 4); }
     }
   }
+  c.dataset.layers = drawn.join(";"); // what was drawn: "name=count;..." (the browser tests read it)
   if ($("layer-trail").checked && S.trail.length > 1) { ctx.strokeStyle = "#2dd"; ctx.lineWidth = 1.5; poly(ctx, S.trail, false); ctx.stroke(); }
   if ($("layer-mission").checked && s.mission.length) {
     ctx.strokeStyle = "#fd4"; ctx.lineWidth = 1; poly(ctx, s.mission.map((m) => m.px), false); ctx.stroke();
