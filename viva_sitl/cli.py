@@ -159,6 +159,21 @@ def build_parser() -> argparse.ArgumentParser:
     )
     run.add_argument("--no-dashboard", action="store_true", help="do not serve the web dashboard")
 
+    replay = sub.add_parser(
+        "replay", help="replay a recorded run (trajectory.csv or telemetry.tlog) in the web dashboard"
+    )
+    replay.add_argument(
+        "run_dir", metavar="RUN_DIR", help="the run directory of a `viva-sitl run` (--run-dir)"
+    )
+    replay.add_argument("--footage", help="footage to replay over (default: the one run.json names)")
+    replay.add_argument("--listen", help="address to bind (default 127.0.0.1)")
+    replay.add_argument(
+        "--dashboard-port", type=_port, help="dashboard port (default 8080; when busy a free port is used)"
+    )
+    replay.add_argument(
+        "--duration", type=positive_float, help="stop serving after this many wall-clock seconds"
+    )
+
     render = sub.add_parser("render", help="render one VAC frame at a pose")
     render.add_argument("--footage", help="catalog name or path (default: synthetic)")
     render.add_argument("--config", help="TOML config file")
@@ -239,6 +254,10 @@ def main(argv: list[str] | None = None) -> int:
             from viva_sitl.app import run_from_args
 
             return run_from_args(args)
+        if args.command == "replay":
+            from viva_sitl.app import replay_from_args
+
+            return replay_from_args(args)
     except (ConfigError, FootageError, DashboardError) as exc:
         print(f"viva-sitl: {exc}", file=sys.stderr)
         return 2
