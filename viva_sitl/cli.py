@@ -137,7 +137,8 @@ def build_parser() -> argparse.ArgumentParser:
     )
     run.add_argument(
         "--run-dir",
-        help="where the SDP files, captures and telemetry.tlog go (default ./runs/<YYYYmmdd-HHMMSS>)",
+        help="where run.json, trajectory.csv, telemetry.tlog, the SDP files and captures go "
+        "(default ./runs/<YYYYmmdd-HHMMSS>; `viva-sitl replay RUN_DIR` opens it)",
     )
     tlog = run.add_mutually_exclusive_group()
     tlog.add_argument(
