@@ -217,7 +217,10 @@ class SitlApp:
         if self.scheduler is not None:
             # First render decodes/generates the footage frame and builds caches: do it before we are "ready".
             await asyncio.get_running_loop().run_in_executor(None, self._render_tick, -1)
-        write_run_info(self.run_dir, self.config, self.sim.footage.metadata.name, self.trajectory.rate_hz)
+        try:
+            write_run_info(self.run_dir, self.config, self.sim.footage.metadata.name, self.trajectory.rate_hz)
+        except OSError as exc:  # the run goes on; the trajectory counts its write errors (stop line)
+            log.warning("cannot write %s: %s (no replay of this run)", self.run_dir, exc.strerror or exc)
         self._sample_trajectory()  # the initial state
         self._trajectory_task = asyncio.create_task(self.trajectory.run(), name="viva-trajectory")
         # dashboard: start (first: a busy --dashboard-port fails before anything runs)
