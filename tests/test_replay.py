@@ -120,6 +120,8 @@ def test_replay_falls_back_to_the_tlog(run_dir: Path, tmp_path: Path) -> None:
         lag = s.sim_time_s - ref.sim_time_s
         assert math.dist(s.pos_ned_m, ref.pos_ned_m) <= math.hypot(*ref.vel_ned_m_s) * lag + 0.05
     assert {"AUTO_TAKEOFF", "AUTO_LOITER"} <= {s.mode for s in rec.samples}
+    first = rec.samples[0]  # before the first HEARTBEAT / SYS_STATUS: the first values the log has
+    assert first.mode == "AUTO_LOITER" and first.landed_state == "ON_GROUND" and first.battery_pct == 100.0
 
 
 def test_bad_run_directories_are_one_line_errors(tmp_path: Path) -> None:

@@ -109,6 +109,28 @@ def _samples_from_tlog(path: Path) -> list[Sample]:
                 )
     finally:
         mlog.close()
+    return _backfill(out)
+
+
+def _backfill(samples: list[Sample]) -> list[Sample]:
+    """Samples before the first HEARTBEAT / SYS_STATUS / EXTENDED_SYS_STATE get the first values the log has."""
+    import dataclasses
+
+    def first(pred: Any) -> Sample | None:
+        return next((s for s in samples if pred(s)), None)
+
+    mode = first(lambda s: s.mode != "UNKNOWN")
+    bat = first(lambda s: math.isfinite(s.battery_pct))
+    landed = first(lambda s: s.landed_state != "UNDEFINED")
+    out = []
+    for s in samples:
+        if mode is not None and s.mode == "UNKNOWN":
+            s = dataclasses.replace(s, mode=mode.mode, armed=mode.armed)
+        if bat is not None and not math.isfinite(s.battery_pct):
+            s = dataclasses.replace(s, battery_pct=bat.battery_pct, battery_v=bat.battery_v)
+        if landed is not None and s.landed_state == "UNDEFINED":
+            s = dataclasses.replace(s, landed_state=landed.landed_state)
+        out.append(s)
     return out
 
 
