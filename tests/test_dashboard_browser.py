@@ -197,3 +197,55 @@ def test_page_shows_the_flight_and_keys_fly_it(sitl_factory: Callable[..., SitlP
         wait_for(lambda: "Kill switch" in text(driver, "statustext"), 5, "the kill message on the page")
         screenshot(driver, shots, "05-killed")
     assert sitl.alive, sitl.logs()
+
+
+def _overview_pixels(driver: Any) -> Any:
+    import numpy as np
+
+    data = driver.execute_script(
+        "const c = document.getElementById('overview');"
+        "return Array.from(c.getContext('2d').getImageData(0, 0, c.width, c.height).data);"
+    )
+    return np.array(data, np.int16)
+
+
+def test_ground_truth_layers_toggle(sitl_factory: Callable[..., SitlProcess]) -> None:
+    """The synthetic field's objects and risk map are drawn on the overview; unticking a layer removes it."""
+    import json
+    import urllib.request
+
+    sitl = sitl_factory(extra_args=["--dashboard-port", str(free_tcp_port())])
+    url = dashboard_url(sitl.ready_line)
+    shots = sitl.workdir / f"{sitl.name}-run" / "screenshots"
+    with urllib.request.urlopen(url + "api/info", timeout=10) as r:
+        info = json.load(r)
+    assert {"objects", "risk map"} <= set(info["layers"])
+    n_risk = len(info["static_layers"]["risk map"])
+    assert n_risk > 0
+    with chromium() as driver:
+        driver.get(url)
+        wait_for(lambda: attr(driver, "overview", "data-bg-frame"), 20, "the overview footage image")
+
+        def drawn() -> dict[str, int]:
+            raw = attr(driver, "overview", "data-layers") or ""
+            return {k: int(v) for k, v in (p.split("=") for p in raw.split(";") if "=" in p)}
+
+        counts = wait_for(lambda: (d := drawn()).get("objects", 0) > 0 and d, 10, "objects on the overview")
+        assert counts["risk map"] == n_risk
+        with urllib.request.urlopen(url + "api/state", timeout=10) as r:
+            n_objects = len(json.load(r)["layers"]["objects"])
+        assert abs(counts["objects"] - n_objects) <= 2  # actors enter/leave between the two samples
+        screenshot(driver, shots, "10-layers-on")
+        with_risk = _overview_pixels(driver)
+
+        driver.find_element("css selector", 'input[data-layer="risk map"]').click()
+        wait_for(lambda: "risk map" not in drawn(), 5, "the risk map toggled off")
+        driver.find_element("css selector", 'input[data-layer="objects"]').click()
+        wait_for(lambda: "objects" not in drawn(), 5, "the objects toggled off")
+        screenshot(driver, shots, "11-layers-off")
+        without = _overview_pixels(driver)
+        changed = float((abs(with_risk - without).reshape(-1, 4)[:, :3].max(axis=1) > 20).mean())
+        assert changed > 0.05, f"toggling the layers changed only {changed:.3f} of the overview's pixels"
+        driver.find_element("css selector", 'input[data-layer="risk map"]').click()
+        wait_for(lambda: drawn().get("risk map") == n_risk, 5, "the risk map back on")
+    assert sitl.alive, sitl.logs()

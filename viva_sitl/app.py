@@ -18,6 +18,7 @@ import signal
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 import cv2
 
@@ -25,17 +26,40 @@ from viva_sitl.autopilot import Autopilot, ParamStore
 from viva_sitl.clock import RealTimePacer, run_paced
 from viva_sitl.config import ConfigError, SimConfig
 from viva_sitl.dashboard.config import DashboardConfig
+from viva_sitl.dashboard.layers import world_layers
+from viva_sitl.dashboard.overview import LayerProvider
 from viva_sitl.dashboard.server import Dashboard
 from viva_sitl.dynamics import EavState
+from viva_sitl.footage import open_footage
+from viva_sitl.footage.loader import resolve_metadata
 from viva_sitl.frame import RenderedFrame
 from viva_sitl.geo import GeoOrigin, home_from_env
 from viva_sitl.mavlink import CameraInfo, CaptureResult, MavlinkEndpoint, StreamEncoding, VideoStreamSpec
 from viva_sitl.mavlink.endpoint import EndpointStartError
+from viva_sitl.recording import TRAJECTORY_FILE, Sample, TrajectoryRecorder, write_run_info
 from viva_sitl.sim import Simulator
 from viva_sitl.vehicle import Vehicle
 from viva_sitl.video import FrameScheduler, VideoPipeline
+from viva_sitl.world import world_from_source
 
 log = logging.getLogger("viva_sitl.app")
+
+
+def _world_layers_of(cfg: SimConfig) -> list[LayerProvider]:
+    """The dashboard's ground-truth layers for footage that has any (none, with a warning, when it fails)."""
+    try:
+        meta = resolve_metadata(cfg.footage)
+        with open_footage(cfg.footage, altitude_m=cfg.footage_alt_m, hfov_deg=cfg.footage_hfov_deg,
+                          gsd_m_per_px=cfg.footage_gsd_m_per_px) as src:  # fmt: skip
+            world = world_from_source(src, meta)
+    except Exception as exc:  # ground truth is an extra: the run goes on without it
+        log.warning("dashboard: no ground-truth layers (%s)", exc)
+        return []
+    return world_layers(world)
+
+
+def _floats3(v: Any) -> tuple[float, float, float]:
+    return float(v[0]), float(v[1]), float(v[2])
 
 
 class SitlApp:
@@ -84,6 +108,9 @@ class SitlApp:
         elif not mav.tlog:
             mav = dataclasses.replace(mav, tlog_path=None)
         self.endpoint = MavlinkEndpoint(self, mav)
+        # the trajectory of every run (recording.py), for `viva-sitl replay` and analysis
+        self.trajectory = TrajectoryRecorder(self.run_dir / TRAJECTORY_FILE)
+        self._trajectory_task: asyncio.Task[None] | None = None
         self._stopping = asyncio.Event()
         self._physics_task: asyncio.Task[None] | None = None
 
@@ -158,6 +185,26 @@ class SitlApp:
             self.dashboard.before_step(self.vehicle.time_s)
         self.vehicle.step(1)
         self.endpoint.on_sim_step()  # telemetry, heartbeats and MAVLink timers run on sim time
+        if self.trajectory.due(self.sim.state.time_s):
+            self._sample_trajectory()
+
+    def _sample_trajectory(self) -> None:
+        s = self.sim.state
+        ap = self.autopilot
+        self.trajectory.add(
+            Sample(
+                float(s.time_s),
+                _floats3(s.pos_ned_m),
+                _floats3(s.vel_ned_m_s),
+                _floats3(s.att_rpy_rad),
+                ap.mode.name,
+                bool(ap.armed),
+                ap.landed_state.name,
+                int(self.sim.footage.frame_index_at(float(s.time_s))),
+                100.0 * float(ap.battery_remaining),
+                float(ap.battery_voltage_v),
+            )
+        )
 
     def _after_batch(self) -> None:
         self.state_wall_time_s = time.time()
@@ -170,8 +217,17 @@ class SitlApp:
         if self.scheduler is not None:
             # First render decodes/generates the footage frame and builds caches: do it before we are "ready".
             await asyncio.get_running_loop().run_in_executor(None, self._render_tick, -1)
+        try:
+            write_run_info(self.run_dir, self.config, self.sim.footage.metadata.name, self.trajectory.rate_hz)
+        except OSError as exc:  # the run goes on; the trajectory counts its write errors (stop line)
+            log.warning("cannot write %s: %s (no replay of this run)", self.run_dir, exc.strerror or exc)
+        self._sample_trajectory()  # the initial state
+        self._trajectory_task = asyncio.create_task(self.trajectory.run(), name="viva-trajectory")
         # dashboard: start (first: a busy --dashboard-port fails before anything runs)
         if self.dashboard is not None:
+            # the footage's ground truth (objects, risk map) as overview layers, built off the loop
+            for layer in await asyncio.get_running_loop().run_in_executor(None, self._world_layers):
+                self.dashboard.add_layer(layer)
             await self.dashboard.start()
         await self.endpoint.start()
         if self.video is not None and self.scheduler is not None:
@@ -192,6 +248,11 @@ class SitlApp:
             self._physics_task.cancel()
             with contextlib.suppress(asyncio.CancelledError):
                 await self._physics_task
+            self._trajectory_task.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await self._trajectory_task
+            self._sample_trajectory()  # the final state
+            await asyncio.get_running_loop().run_in_executor(None, self.trajectory.close)
             if self.dashboard is not None:  # dashboard: stop
                 await self.dashboard.stop()
             await self.endpoint.stop()
@@ -201,6 +262,9 @@ class SitlApp:
                 self.video.stop()
             self.sim.close()
             self._print_stats()
+
+    def _world_layers(self) -> list[LayerProvider]:
+        return _world_layers_of(self.config)
 
     def _print_ready(self) -> None:
         m = self.config.mavlink
@@ -242,6 +306,8 @@ class SitlApp:
         stats["mavlink"] = self.endpoint.stats
         if self.dashboard is not None:
             stats["dashboard"] = self.dashboard.stats()
+        stats["trajectory"] = {"path": str(self.trajectory.path.resolve()), "rows": self.trajectory.rows_written,
+                               "write_errors": self.trajectory.write_errors}  # fmt: skip
         if self.endpoint.tlog_path:
             stats["tlog"] = str(Path(self.endpoint.tlog_path).resolve())
         print(f"viva-sitl stopped: {json.dumps(stats, default=str)}", file=sys.stderr, flush=True)
@@ -341,4 +407,40 @@ def run_from_args(args: argparse.Namespace) -> int:
     return 0
 
 
-__all__ = ["SitlApp", "config_from_args", "dashboard_config_from_args", "run_from_args"]
+def replay_from_args(args: argparse.Namespace) -> int:
+    """`viva-sitl replay RUN_DIR`: the recorded run in the dashboard until Ctrl-C (or --duration)."""
+    from viva_sitl.dashboard.replay import ReplayApp, ReplayError, load_recording
+
+    try:
+        recording = load_recording(Path(args.run_dir), footage=getattr(args, "footage", None))
+    except ReplayError as exc:
+        print(f"viva-sitl: {exc}", file=sys.stderr)
+        return 2
+    app = ReplayApp(recording)
+    dash_cfg = DashboardConfig(host=getattr(args, "listen", None) or "127.0.0.1", port=args.dashboard_port)
+    dashboard = Dashboard(app, dash_cfg, replay=True)
+
+    async def main() -> None:
+        stop = asyncio.Event()
+        loop = asyncio.get_running_loop()
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            loop.add_signal_handler(sig, stop.set)
+        for layer in await loop.run_in_executor(None, _world_layers_of, recording.config):
+            dashboard.add_layer(layer)
+        await dashboard.start()
+        try:
+            r = recording
+            print(f"viva-sitl replay ready: {r.path} ({r.source}, {len(r.samples)} samples, "
+                  f"{r.start_s:.2f}..{r.end_s:.2f} s) footage {app.sim.footage.metadata.name} "
+                  f"| dashboard {dashboard.url}", flush=True)  # fmt: skip
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(stop.wait(), args.duration)
+        finally:
+            await dashboard.stop()
+            await loop.run_in_executor(None, app.close)
+
+    asyncio.run(main())
+    return 0
+
+
+__all__ = ["SitlApp", "config_from_args", "dashboard_config_from_args", "replay_from_args", "run_from_args"]

@@ -137,7 +137,8 @@ def build_parser() -> argparse.ArgumentParser:
     )
     run.add_argument(
         "--run-dir",
-        help="where the SDP files, captures and telemetry.tlog go (default ./runs/<YYYYmmdd-HHMMSS>)",
+        help="where run.json, trajectory.csv, telemetry.tlog, the SDP files and captures go "
+        "(default ./runs/<YYYYmmdd-HHMMSS>; `viva-sitl replay RUN_DIR` opens it)",
     )
     tlog = run.add_mutually_exclusive_group()
     tlog.add_argument(
@@ -158,6 +159,21 @@ def build_parser() -> argparse.ArgumentParser:
         help="web dashboard port (default 8080+instance; when busy a free port is used; 0 = any free port)",
     )
     run.add_argument("--no-dashboard", action="store_true", help="do not serve the web dashboard")
+
+    replay = sub.add_parser(
+        "replay", help="replay a recorded run (trajectory.csv or telemetry.tlog) in the web dashboard"
+    )
+    replay.add_argument(
+        "run_dir", metavar="RUN_DIR", help="the run directory of a `viva-sitl run` (--run-dir)"
+    )
+    replay.add_argument("--footage", help="footage to replay over (default: the one run.json names)")
+    replay.add_argument("--listen", help="address to bind (default 127.0.0.1)")
+    replay.add_argument(
+        "--dashboard-port", type=_port, help="dashboard port (default 8080; when busy a free port is used)"
+    )
+    replay.add_argument(
+        "--duration", type=positive_float, help="stop serving after this many wall-clock seconds"
+    )
 
     render = sub.add_parser("render", help="render one VAC frame at a pose")
     render.add_argument("--footage", help="catalog name or path (default: synthetic)")
@@ -243,6 +259,10 @@ def main(argv: list[str] | None = None) -> int:
             from viva_sitl.app import run_from_args
 
             return run_from_args(args)
+        if args.command == "replay":
+            from viva_sitl.app import replay_from_args
+
+            return replay_from_args(args)
     except (ConfigError, FootageError, DashboardError) as exc:
         print(f"viva-sitl: {exc}", file=sys.stderr)
         return 2

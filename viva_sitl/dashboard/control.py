@@ -100,7 +100,8 @@ class PilotState:
 class Controller:
     """The flying side of the dashboard for one vehicle (its autopilot and the clock readers the app gives)."""
 
-    autopilot: Autopilot
+    # looked up at every use: Vehicle.reset replaces the autopilot, and the page must steer the current one
+    get_autopilot: Callable[[], Autopilot]
     sim_time_s: Callable[[], float]
     yaw_rad: Callable[[], float]
     stick_timeout_s: float = 0.5
@@ -108,6 +109,10 @@ class Controller:
     statustext: Callable[[int, str], None] | None = None
     stats: ControlStats = field(default_factory=ControlStats)
     pilot: PilotState = field(default_factory=PilotState)
+
+    @property
+    def autopilot(self) -> Autopilot:
+        return self.get_autopilot()
 
     # --- who steers --------------------------------------------------------------------------
     def take_control(self, client_id: int) -> int | None:

@@ -33,6 +33,8 @@ class LayerProvider(Protocol):
     `features(time_s, footage_frame_index)` returns drawable features in footage pixels, each a dict:
     {"kind": "box"|"polygon"|"point", "points": [[u, v], ...], "label": str, "color": "#rrggbb" (optional),
     "fill": CSS colour with alpha, e.g. "rgba(255,0,0,0.3)" (polygons, optional: a risk map's cells)}.
+    A polygon may carry "holes": [[[u, v], ...], ...] (drawn even-odd). A provider with a true `static` attribute
+    (features independent of time) is asked once per page, in /api/info, instead of in every telemetry message.
     Register one with `Dashboard.add_layer(provider)` (before or after start); the page shows a toggle per layer.
     Called on the asyncio loop at the telemetry rate: it must be cheap (precompute; never block).
     """

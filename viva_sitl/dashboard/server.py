@@ -111,15 +111,19 @@ def _r(v: float, nd: int = 3) -> float | None:
 class Dashboard:
     """The web dashboard of one vehicle (the app: SitlApp or anything with the same attributes)."""
 
-    def __init__(self, app: Any, config: DashboardConfig, layers: Sequence[LayerProvider] = ()) -> None:
+    def __init__(
+        self, app: Any, config: DashboardConfig, layers: Sequence[LayerProvider] = (), replay: bool = False
+    ) -> None:
+        """`replay`: `app` is a replay.ReplayApp (a recorded run with a time slider; flying disabled)."""
         self.app = app
+        self.replay = replay
         self.config = config
         self.vac = VacOutput(config.jpeg_quality)
         footage = app.sim.footage
         self.geometry = footage.geometry
         self.layers: list[LayerProvider] = [AnnotationLayer(footage), *layers]
         self.controller = Controller(
-            autopilot=app.autopilot,
+            get_autopilot=lambda: app.autopilot,
             sim_time_s=lambda: float(app.time_s),
             yaw_rad=lambda: float(app.state.yaw_rad),
             stick_timeout_s=config.stick_timeout_s,
@@ -129,6 +133,12 @@ class Dashboard:
         self.statustexts: deque[dict[str, Any]] = deque(maxlen=STATUSTEXT_KEPT)
         self.trail: deque[tuple[float, float]] = deque(maxlen=TRAIL_POINTS)
         self._trail_next_s = 0.0
+        if replay:  # the whole recorded path; the VAC panel gets the replay's re-rendered frames
+            self.trail.extend(
+                tuple(round(v, 1) for v in self.geometry.ned_to_px(n, e))  # type: ignore[misc]
+                for n, e in app.trail_ned(TRAIL_POINTS)
+            )
+            app.vac = self.vac
         self._clients: dict[int, _Client] = {}
         self._vac_clients: dict[int, _Client] = {}
         self._next_id = 1
@@ -183,10 +193,12 @@ class Dashboard:
         shown = f"[{host}]" if ":" in str(host) else host
         self.url = f"http://{shown}:{bound}/"
         self.vac.attach(asyncio.get_running_loop(), self._publish_vac)
-        self._tasks = [
-            asyncio.create_task(self._telemetry_loop(), name="dashboard-telemetry"),
-            asyncio.create_task(self._control_loop(), name="dashboard-control"),
-        ]
+        self._tasks = [asyncio.create_task(self._telemetry_loop(), name="dashboard-telemetry")]
+        if self.replay:
+            self._tasks.append(asyncio.create_task(self.app.play_loop(), name="dashboard-replay"))
+            self.app.request_render()
+        else:
+            self._tasks.append(asyncio.create_task(self._control_loop(), name="dashboard-control"))
 
     async def stop(self) -> None:
         self.vac.detach()
@@ -253,21 +265,14 @@ class Dashboard:
     # --- telemetry ------------------------------------------------------------------------------
     def _links(self) -> list[dict[str, Any]]:
         endpoint = getattr(self.app, "endpoint", None)
-        links = getattr(endpoint, "_links", None)  # endpoint internals: peer -> last heard (loop time)
-        if not isinstance(links, dict):
+        if endpoint is None:
             return []
-        now = asyncio.get_running_loop().time()
-        out = []
-        for kind, link in links.items():
-            for addr, heard in list(getattr(link, "peers", {}).items()):
-                age = now - float(heard)
-                out.append({
-                    "link": str(getattr(kind, "value", kind)),
-                    "peer": f"{addr[0]}:{addr[1]}",
-                    "age_s": round(age, 1),
-                    "ok": age <= PEER_LOST_S,
-                })  # fmt: skip
-        return out
+        # ages are sim seconds (the endpoint's clock): a peer heard once a wall second is `speed` sim seconds apart
+        lost_s = PEER_LOST_S * max(1.0, float(self.app.config.speed))
+        return [
+            {"link": link, "peer": f"{addr[0]}:{addr[1]}", "age_s": round(age, 1), "ok": age <= lost_s}
+            for link, addr, age in endpoint.peers_heard()
+        ]
 
     def _refresh_slow_stats(self) -> None:
         now = time.monotonic()
@@ -329,6 +334,8 @@ class Dashboard:
         mode_name = DIRECT if (pilot.direct and mode == FlightMode.OFFBOARD) else mode.name
         layers = {}
         for layer in self.layers:
+            if getattr(layer, "static", False):  # the same at every time: sent once, in /api/info
+                continue
             try:
                 layers[layer.name] = layer.features(t, index)
             except Exception:  # a faulty provider must not take the HUD down
@@ -338,8 +345,8 @@ class Dashboard:
             "t": "state",
             "sim_time_s": _r(t),
             "wall_time_s": time.time(),
-            "speed": float(app.config.speed),
-            "measured_speed": _r(self._measured_speed, 2),
+            "speed": float(app.rate) if self.replay else float(app.config.speed),
+            "measured_speed": None if self.replay else _r(self._measured_speed, 2),
             "mode": mode_name,
             "px4_mode": mode.name,
             "armed": bool(ap.armed),
@@ -372,6 +379,11 @@ class Dashboard:
             "mission_current": int(ap.mission_current_seq),
             "layers": layers,
             "dashboard": self.stats(),
+            "replay": (
+                {"time_s": _r(t), "playing": bool(app.playing), "rate": float(app.rate)}
+                if self.replay
+                else None
+            ),
         }
 
     async def _telemetry_loop(self) -> None:
@@ -379,7 +391,9 @@ class Dashboard:
         while True:
             try:
                 now = time.monotonic()
-                if now >= self._trail_next_s:  # the trail is kept with no page open (cheap: one point)
+                if (
+                    now >= self._trail_next_s and not self.replay
+                ):  # the trail is kept with no page open (cheap: one point)
                     self._trail_next_s = now + TRAIL_PERIOD_S
                     pos = self.app.state.pos_ned_m
                     vx, vy = self.geometry.ned_to_px(float(pos[0]), float(pos[1]))
@@ -424,16 +438,29 @@ class Dashboard:
             "footage": {"name": meta.name, "width_px": g.width_px, "height_px": g.height_px,
                         "gsd_m_per_px": g.gsd_m_per_px, "frames": int(app.sim.footage.frame_count)},
             "camera": {"width_px": cam.width_px, "height_px": cam.height_px, "hfov_deg": cam.hfov_deg},
-            "video": getattr(app, "scheduler", None) is not None,
+            "video": self.replay or getattr(app, "scheduler", None) is not None,
+            "replay": app.info() if self.replay else None,
             "fps": int(app.config.video.fps),
             "sysid": int(app.config.mavlink.system_id),
             "modes": list(SELECTABLE_MODES),
             "keys": [list(k) for k in KEYS_HELP],
             "layers": [layer.name for layer in self.layers],
+            "static_layers": self._static_layers(),
             "overview_max_px": self.config.overview_max_px,
             "trail": [list(p) for p in self.trail],
             "statustexts": list(self.statustexts),
         })  # fmt: skip
+
+    def _static_layers(self) -> dict[str, list[dict[str, Any]]]:
+        out: dict[str, list[dict[str, Any]]] = {}
+        for layer in self.layers:
+            if getattr(layer, "static", False):
+                try:
+                    out[layer.name] = layer.features(float(self.app.time_s), 0)
+                except Exception:
+                    log.exception("dashboard layer %s failed", layer.name)
+                    out[layer.name] = []
+        return out
 
     async def _state(self, request: web.Request) -> web.Response:
         return web.json_response(self.snapshot())
@@ -517,6 +544,19 @@ class Dashboard:
             return
         kind = msg["t"]
         ctl = self.controller
+        if self.replay:
+            if kind == "replay":
+                reason = self._on_replay(msg)
+                if reason is not None:
+                    await self._bad(client, reason)
+            elif kind == "ping":
+                await self._reply(client, {"t": "pong", "wall_time_s": time.time()})
+            elif kind in ("sticks", "cmd", "take_control", "release_control"):
+                await self._bad(client, "replay: flying is disabled (this is a recorded run)")
+            else:
+                ctl.stats.malformed += 1
+                await self._bad(client, f"unknown message type {kind[:40]!r}")
+            return
         if kind == "sticks":
             reason = ctl.sticks(client.id, msg, time.monotonic())
             if reason is not None:
@@ -543,6 +583,30 @@ class Dashboard:
             ctl.stats.malformed += 1
             await self._bad(client, f"unknown message type {kind[:40]!r}")
 
+    def _on_replay(self, msg: dict[str, Any]) -> str | None:
+        """A replay control message; the reason when it is ignored."""
+        app = self.app
+        action = msg.get("action")
+        if action == "play":
+            if app.time_s >= app.recording.end_s:
+                app.seek(app.recording.start_s)
+            app.playing = True
+        elif action == "pause":
+            app.playing = False
+        elif action == "seek":
+            t = msg.get("time_s")
+            if isinstance(t, bool) or not isinstance(t, int | float) or not math.isfinite(t):
+                return "replay seek: time_s must be a finite number"
+            app.seek(float(t))
+        elif action == "rate":
+            r = msg.get("rate")
+            if isinstance(r, bool) or not isinstance(r, int | float) or not 0.1 <= r <= 16.0:
+                return "replay rate: a number in 0.1..16"
+            app.rate = float(r)
+        else:
+            return "replay: action must be play, pause, seek or rate"
+        return None
+
     async def _ws_vac(self, request: web.Request) -> web.WebSocketResponse:
         self._check_origin(request)
         ws = web.WebSocketResponse(max_msg_size=MAX_WS_MESSAGE_BYTES, heartbeat=10.0)
@@ -551,6 +615,8 @@ class Dashboard:
         self._vac_clients[client.id] = client
         self.vac.watchers = len(self._vac_clients)
         pump = asyncio.create_task(client.pump(), name=f"dashboard-vac-{client.id}")
+        if self.replay:  # a frame for the new page at once (live runs render at the stream rate anyway)
+            self.app.request_render()
         try:
             async for msg in ws:  # nothing is expected from the page; anything it sends is ignored
                 if msg.type == WSMsgType.ERROR:

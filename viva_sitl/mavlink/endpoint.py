@@ -456,6 +456,16 @@ class MavlinkEndpoint:
         """The .tlog being written (None: none)."""
         return str(self._tlog.path) if self._tlog is not None else None
 
+    def peers_heard(self) -> list[tuple[str, tuple[str, int], float]]:
+        """Each talking peer of each link: (link name "api"/"gcs", peer (host, port), seconds since it was last
+        heard, on the endpoint's clock: simulation time). At most MAX_PEERS_PER_LINK a link; empty before start."""
+        now = self._now()
+        out: list[tuple[str, tuple[str, int], float]] = []
+        for kind, link in self._links.items():
+            for addr, heard in list(link.peers.items()):
+                out.append((str(kind.value), addr, max(0.0, now - heard)))
+        return out
+
     @property
     def api_address(self) -> tuple[str, int]:
         """The bound local (host, port) of the API link (useful with port 0)."""

@@ -30,6 +30,7 @@ function connect() {
 function send(obj) { if (S.ws && S.ws.readyState === WebSocket.OPEN) S.ws.send(JSON.stringify(obj)); }
 function setRole(role, reason) {
   S.role = role || "read-only";
+  if (S.info && S.info.replay) { $("role").textContent = "replay"; $("role").dataset.role = "replay"; return; }
   $("role").textContent = S.role + (reason ? ` (${reason})` : "");
   $("role").dataset.role = S.role;
   for (const b of document.querySelectorAll("#fly button, #mode-select")) b.disabled = S.role !== "pilot";
@@ -59,7 +60,8 @@ function onState(s) {
   S.state = s;
   const vx = s.vehicle_px;
   const last = S.trail[S.trail.length - 1];
-  if (!last || Math.hypot(vx[0] - last[0], vx[1] - last[1]) > 0.5) { S.trail.push(vx); if (S.trail.length > 4000) S.trail.shift(); }
+  if (s.replay) onReplay(s.replay);
+  else if (!last || Math.hypot(vx[0] - last[0], vx[1] - last[1]) > 0.5) { S.trail.push(vx); if (S.trail.length > 4000) S.trail.shift(); }
   setHud("hud-mode", s.mode, s.mode);
   setHud("hud-armed", s.armed ? "ARMED" : "disarmed", s.armed);
   setHud("hud-alt", fmt(s.alt_agl_m, 2, " m"), s.alt_agl_m);
@@ -71,7 +73,7 @@ function onState(s) {
   setHud("hud-bat", `${fmt(s.battery_pct, 0, " %")} ${fmt(s.battery_v, 2, " V")}`, s.battery_pct);
   setHud("hud-landed", s.landed_state, s.landed_state);
   setHud("hud-time", fmt(s.sim_time_s, 1, " s"), s.sim_time_s);
-  setHud("hud-speed", `×${fmt(s.speed, 1)} (measured ${fmt(s.measured_speed, 2)})`, s.speed);
+  setHud("hud-speed", s.replay ? `replay ×${fmt(s.speed, 1)}` : `×${fmt(s.speed, 1)} (measured ${fmt(s.measured_speed, 2)})`, s.speed);
   setHud("hud-frame", `${s.footage_frame} / ${s.footage_frames}`, s.footage_frame);
   const d = s.dropped;
   setHud("hud-dropped", `render ${d.render_late} · video ${d.video_dropped} · page ${d.vac_page_drops}`);
@@ -152,21 +154,25 @@ function drawOverview() {
   ctx.lineWidth = 2; ctx.strokeStyle = "#e33"; // geofence: the footage edge
   poly(ctx, [[-0.5, -0.5], [F.width_px - 0.5, -0.5], [F.width_px - 0.5, F.height_px - 0.5], [-0.5, F.height_px - 0.5]], true); ctx.stroke();
   if (!s) return;
+  const drawn = [];
   for (const name of S.info.layers) {
     const box = document.querySelector(`input[data-layer="${name}"]`);
     if (!box || !box.checked) continue;
+    drawn.push(`${name}=${(s.layers[name] || S.info.static_layers[name] || []).length}`);
     ctx.strokeStyle = "#f0f"; ctx.fillStyle = "#f0f"; ctx.lineWidth = 1.5; ctx.font = "11px sans-serif";
-    for (const ft of s.layers[name] || []) {
+    for (const ft of s.layers[name] || S.info.static_layers[name] || []) {
       if (ft.color) { ctx.strokeStyle = ft.color; ctx.fillStyle = ft.color; }
       if (ft.kind === "box") { const [a, b] = toCanvas(ft.points[0]), [e, f] = toCanvas(ft.points[1]); ctx.strokeRect(a, b, e - a, f - b); ctx.fillText(ft.label || "", a, b - 2); }
       else if (ft.kind === "polygon") {
         poly(ctx, ft.points, true);
-        if (ft.fill) { ctx.save(); ctx.fillStyle = ft.fill; ctx.fill(); ctx.restore(); }
+        for (const hole of ft.holes || []) { hole.forEach((p, i) => { const [x, y] = toCanvas(p); if (i) ctx.lineTo(x, y); else ctx.moveTo(x, y); }); ctx.closePath(); }
+        if (ft.fill) { ctx.save(); ctx.fillStyle = ft.fill; ctx.fill("evenodd"); ctx.restore(); }
         ctx.stroke();
       }
       else { const [a, b] = toCanvas(ft.points[0]); ctx.fillRect(a - 2, b - 2, 4, 4); }
     }
   }
+  c.dataset.layers = drawn.join(";"); // what was drawn: "name=count;..." (the browser tests read it)
   if ($("layer-trail").checked && S.trail.length > 1) { ctx.strokeStyle = "#2dd"; ctx.lineWidth = 1.5; poly(ctx, S.trail, false); ctx.stroke(); }
   if ($("layer-mission").checked && s.mission.length) {
     ctx.strokeStyle = "#fd4"; ctx.lineWidth = 1; poly(ctx, s.mission.map((m) => m.px), false); ctx.stroke();
@@ -259,6 +265,28 @@ function askKill() {
   S.killTimer = setTimeout(() => { $("btn-kill-confirm").hidden = true; }, 4000);
 }
 
+// ---------------------------------------------------------------- replay (viva-sitl replay RUN_DIR)
+function onReplay(r) {
+  const sl = $("replay-slider");
+  if (!S.sliding) sl.value = String(r.time_s);
+  $("replay-time").textContent = `${r.time_s.toFixed(2)} / ${S.info.replay.end_s.toFixed(2)} s`;
+  $("replay-time").dataset.value = String(r.time_s);
+  $("btn-play").textContent = r.playing ? "Pause" : "Play";
+  $("btn-play").dataset.playing = String(r.playing);
+}
+function setupReplay() {
+  const R = S.info.replay, sl = $("replay-slider");
+  $("replay").hidden = false; $("fly").hidden = true; $("btn-take").hidden = true; $("btn-release").hidden = true; $("keys-panel").hidden = true;
+  $("role").textContent = "replay"; $("role").dataset.role = "replay";
+  $("replay-source").textContent = `${R.source} · ${R.samples} samples · ${R.path}`;
+  sl.min = String(R.start_s); sl.max = String(R.end_s); sl.step = "any"; sl.value = String(R.start_s);
+  sl.oninput = () => { S.sliding = true; send({ t: "replay", action: "seek", time_s: Number(sl.value) }); };
+  sl.onchange = () => { S.sliding = false; send({ t: "replay", action: "seek", time_s: Number(sl.value) }); };
+  $("btn-play").onclick = () => send({ t: "replay", action: $("btn-play").dataset.playing === "true" ? "pause" : "play" });
+  $("replay-rate").onchange = () => send({ t: "replay", action: "rate", rate: Number($("replay-rate").value) });
+  window.addEventListener("keydown", (ev) => { if (ev.key === " ") { ev.preventDefault(); $("btn-play").click(); } });
+}
+
 // ---------------------------------------------------------------- start
 async function main() {
   S.info = await (await fetch("/api/info")).json();
@@ -279,7 +307,8 @@ async function main() {
   $("stick-gain").oninput = () => { $("stick-gain-v").textContent = $("stick-gain").value; };
   if (!S.info.video) $("vac-info").textContent = "video disabled (--no-video)";
   setRole("read-only");
-  fitView(); setupOverviewInput(); setupKeys();
+  fitView(); setupOverviewInput();
+  if (S.info.replay) setupReplay(); else setupKeys();
   connect(); if (S.info.video) connectVac();
   setInterval(stickLoop, 50);
   setInterval(() => { if (S.bgWanted && Date.now() - S.bgWanted > 120) loadBg(); }, 100);
