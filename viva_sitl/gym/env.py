@@ -126,6 +126,10 @@ class LandingEnv(gym.Env[Any, NDArray[np.float32]]):
         source = footage if isinstance(footage, FootageSource) else open_footage(
             footage, altitude_m=cfg.footage_alt_m, hfov_deg=cfg.footage_hfov_deg, gsd_m_per_px=cfg.footage_gsd_m_per_px
         )  # fmt: skip
+        if isinstance(source, SyntheticField) and source.params.draw_ahead:
+            # which window the draw-ahead thread delivers depends on thread timing (a busy worker skips one), and
+            # windows differ by a grey level: draw in line so that seeded rollouts are bit-identical
+            source.params = replace(source.params, draw_ahead=False)
         self.footage = source
         self.vehicle = Vehicle(cfg, footage=source, geofence=True)
         self.world = world if world is not None else world_from_source(source)
@@ -175,7 +179,7 @@ class LandingEnv(gym.Env[Any, NDArray[np.float32]]):
         bgr = self.vehicle.render(wall_time_s=0.0).image_bgr
         if self.grayscale:
             return np.asarray(cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY)[:, :, None], dtype=np.uint8)
-        return np.ascontiguousarray(bgr[:, :, ::-1])
+        return np.asarray(cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB), dtype=np.uint8)
 
     def _obs(self, new_view: NDArray[np.uint8] | None = None) -> Any:
         state = self._state_vec(self.vehicle.state)

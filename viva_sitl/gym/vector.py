@@ -30,7 +30,7 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space, concatenate, create_empty_array
 from numpy.typing import NDArray
 
-from viva_sitl.footage import FootageSource, open_footage
+from viva_sitl.footage import FootageSource, VideoSource, open_footage
 from viva_sitl.footage.synthetic import SyntheticField
 from viva_sitl.gym.env import LandingEnv
 from viva_sitl.gym.scenario import Scenario
@@ -149,7 +149,9 @@ class SharedFootageVectorEnv(VectorEnv[Any, Any, Any]):
         obs: list[Any] = [None] * self.num_envs
         self._global_steps += self.envs[0]._physics_steps(self._global_k)
         self._global_k += 1
-        for i in sorted(range(self.num_envs), key=lambda j: id(self.envs[j].footage)):
+        order = sorted(range(self.num_envs), key=lambda j: id(self.envs[j].footage))
+        self._convert_shared_frames(order, checked)
+        for i in order:
             env = self.envs[i]
             c = checked[i]
             if c is None:
@@ -160,6 +162,22 @@ class SharedFootageVectorEnv(VectorEnv[Any, Any, Any]):
             infos = self._add_info(infos, info, i)
         self._autoreset = terminated | truncated
         return self._batch(obs), rewards, terminated, truncated, infos
+
+    def _convert_shared_frames(self, order: list[int], checked: list[Any]) -> None:
+        """Convert each shared video frame to BGR once when two or more copies will render it: their region reads
+        are then slices of that one conversion (the decoder's own reuse, bit-identical to converting each region)
+        instead of one YUV->BGR conversion per copy."""
+        if self._per_copy or self.envs[0].observation == "state":
+            return
+        users: dict[tuple[int, int], list[int]] = {}
+        for i in order:
+            env = self.envs[i]
+            if checked[i] is None or not isinstance(env.footage, VideoSource):
+                continue
+            users.setdefault((id(env.footage), env.footage.frame_index_at(env.footage_time_s)), []).append(i)
+        for (_, index), copies in users.items():
+            if len(copies) >= 2:
+                self.envs[copies[0]].footage.frame(index)
 
     def _batch(self, obs: list[Any]) -> Any:
         out: Any = create_empty_array(self.single_observation_space, self.num_envs)
