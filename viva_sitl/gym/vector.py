@@ -17,6 +17,9 @@ How the decode is shared:
   copy that starts an episode at global time g gets offset = slot offset + g: copies of a slot stay on the same
   footage frame whatever their episode start. At the first reset (g = 0) the offsets equal a single LandingEnv's,
   so images equal the single env's for the same seeds (tests/test_gym_vector.py).
+- `convert_shared=True`: when two or more copies render one video frame, convert it to BGR once (their region reads
+  become slices of it) instead of each converting its own region: pays off only when the copies' regions together
+  cover much of the frame (high altitudes, large views); off by default (bench/results_gym.md).
 Autoreset: gymnasium's NEXT_STEP mode (the step after a terminated/truncated one resets that copy; reward 0).
 """
 
@@ -45,6 +48,7 @@ class SharedFootageVectorEnv(VectorEnv[Any, Any, Any]):
         num_envs: int,
         footage: str | Path = "synthetic",
         render_mode: str | None = None,
+        convert_shared: bool = False,
         **env_kwargs: Any,
     ) -> None:
         if int(num_envs) < 1:
@@ -52,6 +56,7 @@ class SharedFootageVectorEnv(VectorEnv[Any, Any, Any]):
         env_kwargs.pop("max_episode_steps", None)  # make_vec adds it; the env truncates on max_episode_s
         self.num_envs = int(num_envs)
         self.render_mode = render_mode
+        self.convert_shared = convert_shared
         cfg = env_kwargs.get("config")
         opts: dict[str, Any] = {}
         if cfg is not None:
@@ -167,7 +172,7 @@ class SharedFootageVectorEnv(VectorEnv[Any, Any, Any]):
         """Convert each shared video frame to BGR once when two or more copies will render it: their region reads
         are then slices of that one conversion (the decoder's own reuse, bit-identical to converting each region)
         instead of one YUV->BGR conversion per copy."""
-        if self._per_copy or self.envs[0].observation == "state":
+        if not self.convert_shared or self._per_copy or self.envs[0].observation == "state":
             return
         users: dict[tuple[int, int], list[int]] = {}
         for i in order:
