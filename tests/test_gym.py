@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 import warnings
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -220,3 +221,21 @@ def test_seams_take_a_custom_scorer_and_scenario_drawer() -> None:
     while not term:
         _, r, term, _, info = env.step(np.zeros(4, np.float32))
     assert r == 42.0 and info["score"] == {"outcome": "custom"}
+
+
+def test_leaving_the_footage_ends_the_episode(shared_dir: Path) -> None:
+    footage = str(shared_dir / "footage" / "interchange" / "interchange_1080p.mp4")
+    env = LandingEnv(footage, image_size=(64, 48), render_mode="rgb_array")
+    g = env.footage.geometry
+    edge_east_m = 0.5 * g.ground_width_m - 3.0
+    start = Scenario(pos_ned_m=(0.0, edge_east_m, -30.0), yaw_rad=0.0, footage_offset_s=0.0)
+    env.reset(seed=0, options={"scenario": start})
+    over = env.render()
+    assert over is not None and over.shape[1] <= 800 and over.shape[2] == 3
+    for _ in range(300):
+        obs, r, term, trunc, info = env.step(np.array([1.0, 0.0, 0.0, 0.05], np.float32))  # roll right: east
+        if term:
+            break
+    assert term and info["score"]["outcome"] == "left_footage" and r < -50.0
+    assert not g.contains_ned(float(obs["state"][0]), float(obs["state"][1]))
+    env.close()
