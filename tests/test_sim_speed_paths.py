@@ -20,7 +20,14 @@ from viva_sitl.camera.pyramid import RegionPyramid
 from viva_sitl.config import SimConfig
 from viva_sitl.dynamics import EavCommand, EavParams
 from viva_sitl.footage import open_footage
-from viva_sitl.footage.source import SWSCALE_MAX_WIDTH_PX, VideoSource, crop_to_bgr, to_bgr
+from viva_sitl.footage.source import (
+    SCRATCH_FRAME_AREAS,
+    SCRATCH_FRAMES,
+    SWSCALE_MAX_WIDTH_PX,
+    VideoSource,
+    crop_to_bgr,
+    to_bgr,
+)
 from viva_sitl.footage.testclip import write_coded_clip
 from viva_sitl.sim import Simulator
 
@@ -64,7 +71,17 @@ def test_crop_conversion_equals_crop_of_full_conversion(width: int) -> None:
         got = crop_to_bgr(frame, x0, y0, x1, y1, scratch)
         assert got is not None
         assert np.array_equal(got, full[y0:y1, x0:x1]), (x0, y0, x1, y1)
-    assert len(scratch) == (1 if width <= SWSCALE_MAX_WIDTH_PX else 0)  # swscale: one reusable frame
+    if width > SWSCALE_MAX_WIDTH_PX:
+        assert scratch == []  # OpenCV path: no reusable frame
+    else:  # swscale: reusable frames, one per crop size, bounded by one source frame's pixels (+ the newest)
+        assert 1 <= len(scratch) <= SCRATCH_FRAMES
+        assert sum(f.width * f.height for f in scratch[:-1]) <= SCRATCH_FRAME_AREAS * width * h
+        n = len(scratch)
+        again = crop_to_bgr(frame, *crops[-1], scratch)  # the same size again: reused, nothing added
+        assert again is not None and np.array_equal(
+            again, full[crops[-1][1] : crops[-1][3], crops[-1][0] : crops[-1][2]]
+        )
+        assert len(scratch) == n
 
 
 def test_crop_conversion_refuses_odd_or_outside_crops_and_other_formats() -> None:

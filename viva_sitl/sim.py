@@ -110,6 +110,9 @@ class Simulator:
         ):
             w, h = self.footage.frame_size_px
             self._region = RegionPyramid(w, h)
+        # --- shared-decode hook (viva_sitl.gym): footage time = sim time + footage_offset_s. Copies of a vector
+        # env flying over ONE FootageSource at the same footage time read the same decoded frame. ---
+        self.footage_offset_s = 0.0
         self._prefetcher: ThreadPoolExecutor | None = None
         self._prefetch_job: Future[None] | None = None
         if prefetch and isinstance(self.footage, VideoSource) and self.footage.frame_count > 1:
@@ -174,7 +177,8 @@ class Simulator:
 
     # --- camera --------------------------------------------------------------------------
     def footage_frame(self, time_s: float) -> tuple[int, LazyPyramid]:
-        """The footage frame shown at sim time t (deterministic, looping) and its cached pyramid."""
+        """The footage frame at footage time t (sim time + footage_offset_s; deterministic, looping) and its cached
+        pyramid."""
         index = self.footage.frame_index_at(time_s)
         if index != self._pyramid_index or self._pyramid is None:
             self._pyramid = LazyPyramid(self.footage.frame(index))
@@ -312,7 +316,7 @@ class Simulator:
     def _render_ground_view(self, s: EavState) -> tuple[int, RenderResult]:
         """An edgeless procedural ground (the synthetic field): render from a window drawn around the footprint."""
         assert isinstance(self.footage, SyntheticField)
-        index = self.footage.frame_index_at(s.time_s)
+        index = self.footage.frame_index_at(s.time_s + self.footage_offset_s)
         cam = self.camera
         k = camera_intrinsics(cam)
         us = np.linspace(-0.5, cam.width_px - 0.5, 9)
@@ -336,7 +340,7 @@ class Simulator:
     def _render_image(self, s: EavState) -> tuple[int, RenderResult]:
         if self.footage.geometry.unbounded and isinstance(self.footage, SyntheticField):
             return self._render_ground_view(s)
-        index = self.footage.frame_index_at(s.time_s)
+        index = self.footage.frame_index_at(s.time_s + self.footage_offset_s)
         planned = self._region_pyramid(index, s)
         if planned is not None:
             region, level = planned
@@ -346,7 +350,7 @@ class Simulator:
                 self.region_renders += 1
                 return index, result
             self.camera_rng.bit_generator.state = rng_state  # the same noise on the whole-frame render below
-        index, pyramid = self.footage_frame(s.time_s)
+        index, pyramid = self.footage_frame(s.time_s + self.footage_offset_s)
         self.full_renders += 1
         return index, self.renderer.render(
             pyramid, s.pos_ned_m, s.att_rpy_rad, s.vel_ned_m_s, self.camera_rng

@@ -202,7 +202,7 @@ class _Decoder:
         self._newest: av.VideoFrame | None = None
         self._last: NDArray[np.uint8] | None = None  # the one converted frame, see `_last_bgr`
         self._last_bgr: tuple[int, bool] = (-1, True)  # (index, converted to BGR) of `_last`
-        self._scratch: list[av.VideoFrame] = []  # crop_to_bgr's reusable frame (one size at a time)
+        self._scratch: list[av.VideoFrame] = []  # crop_to_bgr's reusable frames (one per recent crop size)
         self.seeks = 0  # statistics (tests, bench)
         self.decoded = 0
 
@@ -329,6 +329,8 @@ def to_bgr(frame: av.VideoFrame) -> NDArray[np.uint8]:
 
 
 _CROP_FORMATS = ("yuv420p", "yuvj420p")
+SCRATCH_FRAMES = 16  # crop_to_bgr's reusable frames kept (one per crop size) ...
+SCRATCH_FRAME_AREAS = 1  # ... holding at most this many source frames' pixels together (beyond the newest)
 
 
 def _plane_views(frame: av.VideoFrame) -> list[NDArray[np.uint8]]:
@@ -350,7 +352,7 @@ def crop_to_bgr(
     an even offset (chroma stays on its 2x2 grid) and converted by the same converter as `to_bgr` (swscale via a
     reusable frame, or OpenCV above SWSCALE_MAX_WIDTH_PX), both of which convert each pixel from its own Y and its
     2x2 block's U, V, so the crop equals the crop of the full conversion (tests/test_sim_speed_paths.py).
-    `scratch`: a list the caller keeps between calls (holds one reusable frame).
+    `scratch`: a list the caller keeps between calls (holds up to SCRATCH_FRAMES reusable frames, one per size).
     """
     w, h = frame.width, frame.height
     if frame.format.name not in _CROP_FORMATS or w % 2 or h % 2:
@@ -368,11 +370,18 @@ def crop_to_bgr(
         flat[ch * cw : ch * cw + n] = up[cs].reshape(-1)
         flat[ch * cw + n :] = vp[cs].reshape(-1)
         return np.asarray(cv2.cvtColor(buf, cv2.COLOR_YUV2BGR_I420), dtype=np.uint8)
+    # one reusable frame per crop size (each keeps its own swscale context): several views sharing one decoder
+    # (viva_sitl.gym's vector env) read crops of different sizes in turn
     box = scratch if scratch is not None else []
-    small = box[0] if box else None
-    if small is None or (small.width, small.height, small.format.name) != (cw, ch, frame.format.name):
+    small = next((f for f in box if (f.width, f.height, f.format.name) == (cw, ch, frame.format.name)), None)
+    if small is None:
         small = av.VideoFrame(cw, ch, frame.format.name)
-        box[:] = [small]
+        box.append(small)
+        # bounded: at most SCRATCH_FRAMES frames and, beyond the newest, SCRATCH_FRAME_AREAS source frames of pixels
+        while len(box) > 1 and (
+            len(box) > SCRATCH_FRAMES or sum(f.width * f.height for f in box) > SCRATCH_FRAME_AREAS * w * h
+        ):
+            del box[0]
     # the same conversion matrix and range as the decoded frame
     small.colorspace, small.color_range = frame.colorspace, frame.color_range
     dy, du, dv = _plane_views(small)

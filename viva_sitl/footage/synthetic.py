@@ -558,6 +558,14 @@ class SyntheticField(FootageSource):
         self.windows_ahead += 1
         return _Window(ahead[0], ahead[1], _readonly(ahead[2].result()))
 
+    def forget_windows(self) -> None:
+        """Drop the ground window kept from earlier views (and one being drawn ahead): the next view draws afresh,
+        so what a new episode sees depends on its own poses only (viva_sitl.gym calls this on reset: a window left by
+        another flight can differ in grid/level and shift pixels by a grey level)."""
+        with self._lock:
+            self._window, self._ahead = None, None
+            self._view, self._view_key = None, (-1, -1)
+
     def close(self) -> None:
         """Stop the background window drawing (idempotent)."""
         pool, self._pool = self._pool, None

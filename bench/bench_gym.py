@@ -1,0 +1,163 @@
+"""Gymnasium env steps/s: a single LandingEnv, SharedFootageVectorEnv at N = 1, 2, 4, 8, and viva-safeland's DroneEnv.
+
+    /work/venv/bin/python bench/bench_gym.py --markdown /tmp/gym.md
+    /work/venv/bin/python bench/bench_gym.py --ns 1 8 --rounds 2 --footage tiles
+
+One env step = 1/30 s of 250 Hz physics (attitude action [0, 0, 0, 0]: hover, via Vehicle.step_command) + the footage
+frame for that time + the VAC view (`--image-size`, default 640x480 as bench_core's "full step") + state, reward
+(LandingScorer: risk + people queries) and termination. Footage: the 4K bench clip of bench_core.py (the shared
+interchange clip upscaled to 3840x2160, 60 frames, 25 fps) as video, or its jpeg tile cache (`--footage tiles`,
+built by bench_tiles.py / `viva-sitl footage ingest --tiles`). Every copy hovers at --z over its own drawn start
+(ScenarioRanges: north/east within +-15 % of the footage, yaw drawn, one footage offset slot), so N copies render N
+different regions from the shared decode. The reference (`DroneEnv.step`, its own interpreter, same clip, hover at the
+same z, 640x480 view) runs in the same rounds, interleaved. Reported: median env steps/s, median wall and CPU ms per
+env step, ratios (per-env step cost vs a single env; steps/s vs the reference). Load average printed per round: on a
+shared machine wall figures are depressed, CPU ms per step is the steadier figure.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import sys
+import time
+from pathlib import Path
+from types import SimpleNamespace
+from typing import Any
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO))
+sys.path.insert(0, str(REPO / "bench"))
+
+import bench_core as core  # noqa: E402
+
+from viva_sitl.gym import LandingEnv, ScenarioRanges, SharedFootageVectorEnv  # noqa: E402
+
+
+def loadavg() -> str:
+    return " ".join(f"{v:.2f}" for v in os.getloadavg())
+
+
+def env_kwargs(args: argparse.Namespace) -> dict[str, Any]:
+    w, h = (int(v) for v in args.image_size.lower().split("x"))
+    return {
+        "image_size": (w, h),
+        "observation": "image+state",
+        "max_episode_s": 1e6,
+        "scenario": ScenarioRanges(alt_m=(args.z, args.z), xy_frac=0.3, offset_slots=1),
+    }
+
+
+def time_single(footage: str, args: argparse.Namespace) -> tuple[float, float]:
+    """(wall ms, CPU ms) per env step of one LandingEnv."""
+    env = LandingEnv(footage, **env_kwargs(args))
+    env.reset(seed=0)
+    a = np.zeros(4, np.float32)
+    c0, t0 = time.process_time(), time.perf_counter()
+    for _ in range(args.steps):
+        env.step(a)
+    wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+    env.close()
+    return 1e3 * wall / args.steps, 1e3 * cpu / args.steps
+
+
+def time_vector(footage: str, n: int, args: argparse.Namespace) -> tuple[float, float]:
+    """(wall ms, CPU ms) per env step (one vector step = n env steps)."""
+    venv = SharedFootageVectorEnv(n, footage=footage, **env_kwargs(args))
+    venv.reset(seed=0)
+    a = np.zeros((n, 4), np.float32)
+    c0, t0 = time.process_time(), time.perf_counter()
+    for _ in range(args.steps):
+        venv.step(a)
+    wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+    venv.close()
+    return 1e3 * wall / (args.steps * n), 1e3 * cpu / (args.steps * n)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--footage", choices=("video", "tiles"), default="video")
+    ap.add_argument("--image-size", default="640x480")
+    ap.add_argument("--z", type=float, default=50.0, help="hover altitude, m")
+    ap.add_argument("--ns", type=int, nargs="+", default=[1, 2, 4, 8])
+    ap.add_argument("--steps", type=int, default=60, help="env steps (vector: vector steps) per timed run")
+    ap.add_argument("--rounds", type=int, default=3)
+    ap.add_argument("--ref-python", default="/work/refvenv/bin/python")
+    ap.add_argument("--no-ref", action="store_true")
+    ap.add_argument("--cache-dir", type=Path, default=core.DEFAULT_CACHE)
+    ap.add_argument("--markdown", type=Path, default=None)
+    ap.add_argument("--json", type=Path, default=None)
+    args = ap.parse_args()
+    clip = core.make_clip(args.cache_dir, 60, rel_alt_m=core.DEFAULT_REL_ALT_M)
+    if args.footage == "tiles":
+        import bench_tiles
+
+        footage = str(bench_tiles.make_tiles(clip, "jpeg"))
+    else:
+        footage = str(clip)
+    ref = None
+    why = "--no-ref" if args.no_ref else core.reference_available(args.ref_python)
+    if why is None:
+        ns = SimpleNamespace(z=args.z, yaw_deg=30.0, out_size=args.image_size, steps=args.steps,
+                             rel_alt=core.DEFAULT_REL_ALT_M)  # fmt: skip
+        ref = core.Reference(args.ref_python, clip, ns)  # type: ignore[arg-type]
+    else:
+        print(f"# reference skipped: {why}", file=sys.stderr)
+    # warm-up (imports, world build, first decode) untimed
+    time_single(footage, replace_steps(args, 5))
+    runs: dict[str, list[tuple[float, float]]] = {"single": [], **{f"vec{n}": [] for n in args.ns}, "ref": []}
+    loads = []
+    for r in range(args.rounds):
+        loads.append(loadavg())
+        if ref is not None:
+            sps, cpu_ms = ref.run()
+            runs["ref"].append((1e3 / sps, cpu_ms))
+        runs["single"].append(time_single(footage, args))
+        for n in args.ns:
+            runs[f"vec{n}"].append(time_vector(footage, n, args))
+        print(f"# round {r + 1}/{args.rounds} load {loads[-1]}: "
+              + ", ".join(f"{k} {v[-1][0]:.1f} ms" for k, v in runs.items() if v), file=sys.stderr)  # fmt: skip
+    if ref is not None:
+        ref.close()
+    med = {
+        k: (statistics.median(w for w, _ in v), statistics.median(c for _, c in v))
+        for k, v in runs.items()
+        if v
+    }
+    single_w, single_c = med["single"]
+    rows = []
+    for k, (w, c) in med.items():
+        rows.append({
+            "variant": k, "env_steps_per_s": 1e3 / w, "wall_ms_per_env_step": w, "cpu_ms_per_env_step": c,
+            "cost_vs_single_wall": w / single_w, "cost_vs_single_cpu": c / single_c,
+            "x_ref_steps_per_s": (med["ref"][0] / w) if "ref" in med else None,
+        })  # fmt: skip
+    head = (f"footage: {args.footage} ({footage}), view {args.image_size}, z {args.z} m, {args.steps} steps per run, "
+            f"{args.rounds} rounds, machine: {os.cpu_count()} cores, load per round: {'; '.join(loads)}")  # fmt: skip
+    lines = [head, "", "| variant | env steps/s | wall ms / env step | CPU ms / env step | cost vs single (wall) "
+             "| cost vs single (CPU) | steps/s vs ref |", "|---|---:|---:|---:|---:|---:|---:|"]  # fmt: skip
+    for row in rows:
+        x = row["x_ref_steps_per_s"]
+        lines.append(f"| {row['variant']} | {row['env_steps_per_s']:.1f} | {row['wall_ms_per_env_step']:.2f} | "
+                     f"{row['cpu_ms_per_env_step']:.2f} | {row['cost_vs_single_wall']:.3f} | "
+                     f"{row['cost_vs_single_cpu']:.3f} | {'' if x is None else f'{x:.2f}x'} |")  # fmt: skip
+    text = "\n".join(lines)
+    print(text)
+    if args.markdown:
+        args.markdown.write_text(text + "\n")
+    if args.json:
+        args.json.write_text(json.dumps({"head": head, "rows": rows, "runs": runs}, indent=1))
+
+
+def replace_steps(args: argparse.Namespace, steps: int) -> argparse.Namespace:
+    out = argparse.Namespace(**vars(args))
+    out.steps = steps
+    return out
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,57 @@
+"""Gymnasium environments (optional extra `gym`): importing this module registers them.
+
+    import gymnasium as gym
+    import viva_sitl.gym  # noqa: F401  (registers the ids below)
+    env = gym.make("viva_sitl/Landing-v0", footage="synthetic")
+
+- viva_sitl/Landing-v0: Dict(image, state) observation, viva-safeland's normalised attitude/thrust actions.
+- viva_sitl/LandingVelocity-v0: the same observation, velocity setpoints through the autopilot (OFFBOARD).
+- viva_sitl/LandingState-v0: state vector only (nothing rendered), attitude actions.
+- viva_sitl/LandingStateVelocity-v0: state vector only, velocity setpoints.
+Vectorized over one shared footage decode: `SharedFootageVectorEnv` (or gymnasium.make_vec(id, num_envs,
+vectorization_mode="vector_entry_point")). Seams for the trials runner: `Scorer` (scoring.py) and
+`ScenarioDrawer` (scenario.py).
+"""
+
+from __future__ import annotations
+
+try:
+    import gymnasium
+except ImportError as exc:  # pragma: no cover - depends on the install
+    raise ImportError("viva_sitl.gym needs gymnasium: pip install 'viva-sitl[gym]'") from exc
+
+from viva_sitl.gym.env import STATE_FIELDS, LandingEnv, overview_rgb
+from viva_sitl.gym.scenario import RangeScenarioDrawer, Scenario, ScenarioDrawer, ScenarioRanges
+from viva_sitl.gym.scoring import LandingScoreConfig, LandingScorer, Scorer, StepScore
+from viva_sitl.gym.vector import SharedFootageVectorEnv
+
+_VARIANTS = {
+    "viva_sitl/Landing-v0": {},
+    "viva_sitl/LandingVelocity-v0": {"action_mode": "velocity"},
+    "viva_sitl/LandingState-v0": {"observation": "state"},
+    "viva_sitl/LandingStateVelocity-v0": {"observation": "state", "action_mode": "velocity"},
+}
+
+for _id, _kwargs in _VARIANTS.items():
+    if _id not in gymnasium.registry:
+        gymnasium.register(
+            id=_id,
+            entry_point="viva_sitl.gym.env:LandingEnv",
+            vector_entry_point="viva_sitl.gym.vector:SharedFootageVectorEnv",
+            kwargs=dict(_kwargs),
+        )
+
+__all__ = [
+    "STATE_FIELDS",
+    "LandingEnv",
+    "LandingScoreConfig",
+    "LandingScorer",
+    "RangeScenarioDrawer",
+    "Scenario",
+    "ScenarioDrawer",
+    "ScenarioRanges",
+    "Scorer",
+    "SharedFootageVectorEnv",
+    "StepScore",
+    "overview_rgb",
+]

@@ -1,0 +1,348 @@
+"""Gymnasium landing environments over the ONE vehicle loop (viva_sitl.vehicle.Vehicle).
+
+    import gymnasium as gym, viva_sitl.gym
+    env = gym.make("viva_sitl/Landing-v0", footage="synthetic", image_size=(160, 120))
+    obs, info = env.reset(seed=0)            # obs = {"image": HxWxC uint8 (RGB), "state": float32[10]}
+    obs, reward, terminated, truncated, info = env.step(env.action_space.sample())
+
+Actions (`action_mode`):
+- "attitude" (default): viva-safeland DroneEnv's normalised [roll, pitch, yaw-rate, thrust] in [-1, 1]: roll =
+  max_tilt_deg x a0, pitch = max_tilt_deg x a1 (its sign convention: +a1 = its +theta = nose down in NED terms is
+  -pitch), yaw rate = max_yaw_rate_deg_s x a2 (its +psi is counter-clockwise seen from above), thrust = m g (1 + a3);
+  [0, 0, 0, 0] hovers. Flown with Vehicle.step_command (autopilot bypassed) for one control period.
+- "velocity": [v_north, v_east, v_down, yaw-rate] in [-1, 1] x (max_speed_m_s, max_speed_m_s, max_vspeed_m_s,
+  max_yaw_rate_deg_s): an offboard velocity setpoint to the autopilot (OFFBOARD mode, as MAVSDK's
+  set_velocity_ned), flown with Vehicle.step.
+Each env step is one control period (1/control_hz s) of physics: n = 8 or 9 steps of 250 Hz physics at 30 Hz, the
+same schedule as viva-safeland-comparison benches (round((k+1) rate/hz) - round(k rate/hz)).
+
+Bad actions: a NaN/inf or wrongly shaped action raises ValueError with a one-line message (the vehicle is not
+stepped); an out-of-range action is clipped to [-1, 1] (`info["action_clipped"]` says so) or, with
+out_of_range="raise", raises ValueError.
+
+Observation (`observation`): "image+state" -> Dict(image, state); "state" -> the state Box only (no rendering).
+image: the VAC view, `image_size` (w, h), RGB (or grayscale HxWx1), `frame_stack` k > 1 concatenates the last k
+views along the channel axis (oldest first). state (float32): north, east, down (m), v_north, v_east, v_down (m/s),
+roll, pitch, yaw (rad), altitude above ground (m).
+
+Reward/termination: the Scorer seam (viva_sitl.gym.scoring); start: the ScenarioDrawer seam
+(viva_sitl.gym.scenario), drawn from reset's seed. Truncation: episode sim time >= max_episode_s.
+`render()` (render_mode="rgb_array"): the overview, the footage frame at the current footage time with the risk map,
+the objects, the vehicle and its camera footprint (RGB).
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from collections.abc import Callable
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+import cv2
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+from numpy.typing import NDArray
+
+from viva_sitl.autopilot.types import FlightMode, PositionTarget
+from viva_sitl.config import SimConfig
+from viva_sitl.dynamics import EavCommand, EavState
+from viva_sitl.footage import FootageSource, open_footage
+from viva_sitl.footage.synthetic import SyntheticField
+from viva_sitl.gym.scenario import RangeScenarioDrawer, Scenario, ScenarioDrawer, ScenarioRanges
+from viva_sitl.gym.scoring import LandingScoreConfig, LandingScorer, Scorer
+from viva_sitl.vehicle import Vehicle
+from viva_sitl.world import WorldModel, world_from_source
+
+ACTION_MODES = ("attitude", "velocity")
+OBSERVATIONS = ("image+state", "state")
+STATE_FIELDS = ("north_m", "east_m", "down_m", "v_north_m_s", "v_east_m_s", "v_down_m_s",
+                "roll_rad", "pitch_rad", "yaw_rad", "alt_agl_m")  # fmt: skip
+
+
+class LandingEnv(gym.Env[Any, NDArray[np.float32]]):
+    """Land the EAV over footage. See the module docstring for spaces, actions, reward and seams."""
+
+    metadata: dict[str, Any] = {"render_modes": ["rgb_array"], "render_fps": 30}
+
+    def __init__(
+        self,
+        footage: str | Path | FootageSource = "synthetic",
+        *,
+        action_mode: str = "attitude",
+        observation: str = "image+state",
+        image_size: tuple[int, int] = (160, 120),
+        grayscale: bool = False,
+        frame_stack: int = 1,
+        control_hz: float = 30.0,
+        max_episode_s: float = 60.0,
+        config: SimConfig | None = None,
+        scenario: ScenarioRanges | None = None,
+        scenario_drawer: ScenarioDrawer | None = None,
+        score: LandingScoreConfig | None = None,
+        scorer: Scorer | None = None,
+        world: WorldModel | None = None,
+        max_tilt_deg: float = 15.0,
+        max_yaw_rate_deg_s: float = 30.0,
+        max_speed_m_s: float = 5.0,
+        max_vspeed_m_s: float = 3.0,
+        out_of_range: str = "clip",
+        render_mode: str | None = None,
+        overview_px: int = 800,
+    ) -> None:
+        if action_mode not in ACTION_MODES:
+            raise ValueError(f"action_mode must be one of {ACTION_MODES}, got {action_mode!r}")
+        if observation not in OBSERVATIONS:
+            raise ValueError(f"observation must be one of {OBSERVATIONS}, got {observation!r}")
+        if out_of_range not in ("clip", "raise"):
+            raise ValueError(f"out_of_range must be 'clip' or 'raise', got {out_of_range!r}")
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
+        w, h = (int(v) for v in image_size)
+        if w < 8 or h < 8 or frame_stack < 1:
+            raise ValueError(
+                f"image_size must be at least 8x8 and frame_stack >= 1, got {image_size}, {frame_stack}"
+            )
+        if not (control_hz > 0.0 and math.isfinite(control_hz)) or not (max_episode_s > 0.0):
+            raise ValueError("control_hz and max_episode_s must be positive")
+        self.action_mode, self.observation, self.render_mode = action_mode, observation, render_mode
+        self.grayscale, self.frame_stack, self.control_hz = grayscale, int(frame_stack), float(control_hz)
+        self.max_episode_s, self.out_of_range, self.overview_px = (
+            float(max_episode_s),
+            out_of_range,
+            overview_px,
+        )
+        self.max_tilt_rad = math.radians(max_tilt_deg)
+        self.max_yaw_rate_rad_s = math.radians(max_yaw_rate_deg_s)
+        self.max_speed_m_s, self.max_vspeed_m_s = float(max_speed_m_s), float(max_vspeed_m_s)
+        self.metadata = {**self.metadata, "render_fps": self.control_hz}
+
+        base = config or SimConfig()
+        cfg = replace(base, camera=replace(base.camera, width_px=w, height_px=h))
+        # footage by name/path: this env owns it; a FootageSource passed in is shared (vector env) and not closed
+        self._owns_footage = not isinstance(footage, FootageSource)
+        source = footage if isinstance(footage, FootageSource) else open_footage(
+            footage, altitude_m=cfg.footage_alt_m, hfov_deg=cfg.footage_hfov_deg, gsd_m_per_px=cfg.footage_gsd_m_per_px
+        )  # fmt: skip
+        if isinstance(source, SyntheticField) and source.params.draw_ahead:
+            # which window the draw-ahead thread delivers depends on thread timing (a busy worker skips one), and
+            # windows differ by a grey level: draw in line so that seeded rollouts are bit-identical
+            source.params = replace(source.params, draw_ahead=False)
+        self.footage = source
+        self.vehicle = Vehicle(cfg, footage=source, geofence=True)
+        self.world = world if world is not None else world_from_source(source)
+        self.scorer: Scorer = scorer if scorer is not None else LandingScorer(self.world, score)
+        self.scenario_drawer: ScenarioDrawer = scenario_drawer or RangeScenarioDrawer(scenario)
+        self.scenario: Scenario | None = None
+        self.rate_hz = 1.0 / self.vehicle.dt_s
+
+        self.action_space = spaces.Box(-1.0, 1.0, shape=(4,), dtype=np.float32)
+        state_space = spaces.Box(-np.inf, np.inf, shape=(len(STATE_FIELDS),), dtype=np.float32)
+        c = (1 if grayscale else 3) * self.frame_stack
+        image_space = spaces.Box(0, 255, shape=(h, w, c), dtype=np.uint8)
+        self.observation_space: spaces.Space[Any] = (
+            spaces.Dict({"image": image_space, "state": state_space})
+            if observation == "image+state"
+            else state_space
+        )
+        self._frames: deque[NDArray[np.uint8]] = deque(maxlen=self.frame_stack)
+        self._k = 0  # control steps this episode
+        self._k0 = (
+            0  # control-step phase of the physics schedule (a vector env aligns its copies on one clock)
+        )
+        # set by a vector env: (env, scenario) -> None picks the shared source and sets the footage offset
+        self._binder: Callable[[LandingEnv, Scenario], None] | None = None
+        self._yaw_cmd_rad = 0.0
+        self._done = True
+
+    # --- helpers ----------------------------------------------------------------------------
+    @property
+    def footage_time_s(self) -> float:
+        return self.vehicle.time_s + self.vehicle.sim.footage_offset_s
+
+    def _physics_steps(self, k: int) -> int:
+        """Physics steps in control step k (of a global schedule, so k reference steps = round(k rate / hz))."""
+        r = self.rate_hz / self.control_hz
+        return max(1, round((k + 1) * r) - round(k * r))
+
+    def _state_vec(self, s: EavState) -> NDArray[np.float32]:
+        v = s.vel_ned_m_s
+        p = s.pos_ned_m
+        ground = self.vehicle.sim.params.ground_z_ned_m
+        return np.array([p[0], p[1], p[2], v[0], v[1], v[2], s.roll_rad, s.pitch_rad, s.yaw_rad, ground - p[2]],
+                        dtype=np.float32)  # fmt: skip
+
+    def view(self) -> NDArray[np.uint8]:
+        """The VAC image as observed (RGB or grayscale HxWx1), one view (no stacking)."""
+        bgr = self.vehicle.render(wall_time_s=0.0).image_bgr
+        if self.grayscale:
+            return np.asarray(cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY)[:, :, None], dtype=np.uint8)
+        return np.asarray(cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB), dtype=np.uint8)
+
+    def _obs(self, new_view: NDArray[np.uint8] | None = None) -> Any:
+        state = self._state_vec(self.vehicle.state)
+        if self.observation == "state":
+            return state
+        self._frames.append(self.view() if new_view is None else new_view)
+        while len(self._frames) < self.frame_stack:
+            self._frames.appendleft(self._frames[0])
+        image = self._frames[0] if self.frame_stack == 1 else np.concatenate(list(self._frames), axis=2)
+        return {"image": image, "state": state}
+
+    def _check_action(self, action: Any) -> tuple[NDArray[np.float64], bool]:
+        try:
+            a = np.asarray(action, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise ValueError(f"action must be 4 numbers in [-1, 1], got {action!r}") from None
+        if a.shape != (4,):
+            raise ValueError(f"action must have shape (4,), got shape {a.shape}")
+        if not np.all(np.isfinite(a)):
+            raise ValueError(f"action must be finite, got {a.tolist()}")
+        clipped = bool(np.any(np.abs(a) > 1.0))
+        if clipped:
+            if self.out_of_range == "raise":
+                raise ValueError(f"action out of [-1, 1]: {a.tolist()}")
+            a = np.clip(a, -1.0, 1.0)
+        return a, clipped
+
+    # --- gymnasium API ---------------------------------------------------------------------------
+    def reset(
+        self, *, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[Any, dict[str, Any]]:
+        """A new episode. `seed` draws the scenario (ScenarioDrawer) and seeds the simulator's disturbances and
+        sensor noise; options: {"scenario": Scenario} flies that scenario instead of drawing one."""
+        super().reset(seed=seed)
+        opts = options or {}
+        sc = opts.get("scenario")
+        if sc is None:
+            sc = self.scenario_drawer(self.np_random, self.footage.geometry, self.footage.duration_s)
+        elif not isinstance(sc, Scenario):
+            raise ValueError(f"options['scenario'] must be a viva_sitl.gym.Scenario, got {type(sc).__name__}")
+        self.scenario = sc
+        return self._start(sc, int(self.np_random.integers(2**63 - 1)))
+
+    def _start(self, sc: Scenario, sim_seed: int) -> tuple[Any, dict[str, Any]]:
+        veh = self.vehicle
+        veh.params.set("SIM_WIND_N", sc.wind_ned_m_s[0])
+        veh.params.set("SIM_WIND_E", sc.wind_ned_m_s[1])
+        veh.params.set("SIM_WIND_D", sc.wind_ned_m_s[2])
+        veh.params.set("SIM_GUST_STD", sc.gust_std_m_s)
+        if self._binder is not None:
+            self._binder(self, sc)
+        else:
+            veh.sim.footage_offset_s = sc.footage_offset_s
+        if isinstance(self.footage, SyntheticField):
+            self.footage.forget_windows()  # the views depend on this episode's poses only
+        state = veh.reset(seed=sim_seed, pos_ned_m=sc.pos_ned_m, yaw_rad=sc.yaw_rad)
+        self._yaw_cmd_rad = sc.yaw_rad
+        if self.action_mode == "velocity":
+            ap = veh.autopilot
+            hold = PositionTarget(vel_ned_m_s=(0.0, 0.0, 0.0), yaw_rate_rad_s=0.0)
+            for out in (
+                ap.set_position_target(veh.time_s, hold),
+                ap.set_mode(veh.time_s, FlightMode.OFFBOARD),
+            ):
+                if not out.ok:
+                    raise RuntimeError(f"cannot start offboard control: {out.reason}")
+        self.scorer.reset(state, self.footage_time_s)
+        self._k = 0
+        self._done = False
+        self._frames.clear()
+        return self._obs(), self._info({})
+
+    def _info(self, score: dict[str, Any], clipped: bool = False) -> dict[str, Any]:
+        return {
+            "time_s": self.vehicle.time_s,
+            "footage_time_s": self.footage_time_s,
+            "footage_offset_s": self.vehicle.sim.footage_offset_s,
+            "score": score,
+            "action_clipped": clipped,
+        }
+
+    def step(self, action: Any) -> tuple[Any, float, bool, bool, dict[str, Any]]:
+        if self.scenario is None:
+            raise RuntimeError("call reset() before step()")
+        a, clipped = self._check_action(action)
+        self._advance(a)
+        return self._finish(clipped)
+
+    def _advance(self, a: NDArray[np.float64]) -> None:
+        """Fly one control period with the checked action (the Vehicle loop: step_command or step)."""
+        veh = self.vehicle
+        n = self._physics_steps(self._k0 + self._k)
+        dt_ctrl = n * veh.dt_s
+        if self.action_mode == "attitude":
+            self._yaw_cmd_rad = math.remainder(
+                self._yaw_cmd_rad - float(a[2]) * self.max_yaw_rate_rad_s * dt_ctrl, 2.0 * math.pi
+            )
+            cmd = EavCommand(
+                roll_rad=float(a[0]) * self.max_tilt_rad,
+                pitch_rad=-float(a[1]) * self.max_tilt_rad,
+                yaw_rad=self._yaw_cmd_rad,
+                thrust_n=veh.sim.params.hover_thrust_n * (1.0 + float(a[3])),
+            )
+            veh.step_command(cmd, n)
+        else:
+            target = PositionTarget(
+                vel_ned_m_s=(float(a[0]) * self.max_speed_m_s, float(a[1]) * self.max_speed_m_s,
+                             float(a[2]) * self.max_vspeed_m_s),
+                yaw_rate_rad_s=float(a[3]) * self.max_yaw_rate_rad_s,
+            )  # fmt: skip
+            out = veh.autopilot.set_position_target(veh.time_s, target)
+            if not out.ok:
+                raise ValueError(f"velocity setpoint refused: {out.reason}")
+            veh.step(n)
+        self._k += 1
+
+    def _finish(self, clipped: bool, new_view: NDArray[np.uint8] | None = None) -> tuple[Any, float, bool, bool, dict[str, Any]]:  # fmt: skip
+        veh = self.vehicle
+        s = veh.state
+        inside = veh.inside is None or veh.inside(float(s.pos_ned_m[0]), float(s.pos_ned_m[1]))
+        sc = self.scorer.score(s, self.footage_time_s, inside)
+        truncated = not sc.terminated and veh.time_s >= self.max_episode_s - 1e-9
+        return (
+            self._obs(new_view),
+            float(sc.reward),
+            bool(sc.terminated),
+            bool(truncated),
+            self._info(sc.info, clipped),
+        )
+
+    def render(self) -> NDArray[np.uint8] | None:  # type: ignore[override]
+        if self.render_mode is None:
+            return None
+        return overview_rgb(self, self.overview_px)
+
+    def close(self) -> None:
+        if self._owns_footage:
+            self.vehicle.close()
+
+
+def overview_rgb(env: LandingEnv, max_px: int) -> NDArray[np.uint8]:
+    """The footage frame at the env's footage time (risk + objects, viva_sitl.world.overlay), the vehicle and its
+    camera footprint drawn on it; RGB."""
+    from viva_sitl.dashboard.overview import footprint_px
+    from viva_sitl.world.overlay import render_overview
+
+    t = env.footage_time_s
+    img = render_overview(env.world, env.footage, t, max_size_px=max_px, show_ids=False)
+    g = env.footage.geometry
+    scale = img.shape[1] / g.width_px
+    s = env.vehicle.state
+    quad = footprint_px(g, env.vehicle.sim.camera, s.pos_ned_m, s.att_rpy_rad)
+    if quad is not None:
+        pts = np.array([[(u + 0.5) * scale - 0.5, (v + 0.5) * scale - 0.5] for u, v in quad], np.float64)
+        cv2.polylines(
+            img, [np.round(pts * 16).astype(np.int32)], True, (0, 255, 255), 2, cv2.LINE_AA, shift=4
+        )
+    u, v = g.ned_to_px(float(s.pos_ned_m[0]), float(s.pos_ned_m[1]))
+    c = (round((u + 0.5) * scale - 0.5), round((v + 0.5) * scale - 0.5))
+    cv2.circle(img, c, 6, (0, 0, 255), 2, cv2.LINE_AA)
+    cv2.putText(img, f"alt {s.altitude_m:.1f} m", (c[0] + 8, c[1] - 8), cv2.FONT_HERSHEY_SIMPLEX, 0.45,
+                (0, 0, 255), 1, cv2.LINE_AA)  # fmt: skip
+    return np.ascontiguousarray(img[:, :, ::-1])
+
+
+__all__ = ["ACTION_MODES", "OBSERVATIONS", "STATE_FIELDS", "LandingEnv", "overview_rgb"]
