@@ -19,7 +19,12 @@ Behaviour choices where PX4's is unclear or unsuitable (also in the README):
 - Geofence (footage edge, GF_ACTION, default 2 Hold): Hold holds at the last position that was still inside the
   footage, so the camera sees footage again. Arming outside the footage, repositioning to or uploading a mission with
   a waypoint outside it are refused.
-- DO_REPOSITION needs an armed vehicle in the air (landed: TEMPORARILY_REJECTED).
+- DO_REPOSITION needs an armed vehicle in the air (landed: TEMPORARILY_REJECTED). Without the change-mode flag
+  (MAV_DO_REPOSITION_FLAGS_CHANGE_MODE) it moves the Hold target only when already in Hold; otherwise the target is
+  kept and flown the next time Hold is entered (PX4's reposition triplet).
+- Uploaded geofence (geofence.py), rally points (RTL to the closest of home and rally points), Orbit (orbit.py),
+  DO_JUMP / NAV_DELAY / camera items (mission.py, payload.py): the logic lives in those pure modules; the hunks
+  marked "# [fence]" below are the thin calls into them.
 - Mission TAKEOFF items climb vertically at the current position (the item's horizontal position is ignored); a
   mission started on the ground without a TAKEOFF item first climbs to MIS_TAKEOFF_ALT (or the item's altitude).
 """
@@ -46,8 +51,25 @@ from viva_sitl.autopilot.control import (
     body_rates_to_euler_rates,
     slew_yaw,
 )
-from viva_sitl.autopilot.mission import NAV_COMMANDS, MissionProgress, mission_yaw, validate_mission
+from viva_sitl.autopilot.geofence import (  # [fence]
+    FenceLimits,
+    Geofence,
+    GeofenceAction,
+    RallyPoint,
+    breach_reason,
+    rtl_destination,
+)
+from viva_sitl.autopilot.mission import (
+    NAV_COMMANDS,
+    MissionProgress,
+    mission_yaw,
+    resolve_item,
+    resolve_jumps,
+    validate_mission,
+)
+from viva_sitl.autopilot.orbit import Orbit, apply_command, orbit_step  # [fence]
 from viva_sitl.autopilot.params import SIM_EAV_PARAMS, ParamStore
+from viva_sitl.autopilot.payload import DistanceTrigger, item_effect  # [fence]
 from viva_sitl.autopilot.setpoints import (
     MAX_ABS_POS_M,
     check_attitude_target,
@@ -69,6 +91,7 @@ from viva_sitl.autopilot.types import (
     MissionCommand,
     MissionItem,
     Outcome,
+    PayloadAction,
     PositionTarget,
     Severity,
 )
@@ -174,6 +197,19 @@ class Autopilot:
         self._gf_outside = False
         self._gf_next_check_s = -math.inf
         self._last_inside_ned: Vec3 | None = None
+
+        # [fence] uploaded geofence, rally points, orbit, pending reposition, payload
+        self._fence = Geofence()
+        self._rally: tuple[RallyPoint, ...] = ()
+        self._fence_breached = False
+        self._fence_next_check_s = -math.inf
+        self._rtl_dest: Vec3 | None = None  # where RTL returns to (home or a rally point)
+        self._orbit: Orbit | None = None
+        self._orbit_approach = True
+        self._pending_reposition: tuple[Vec3, float | None, float | None] | None = None
+        self._payload: list[PayloadAction] = []
+        self._trigger = DistanceTrigger()
+        self._gimbal_deg = (0.0, 0.0)
 
         self._battery = Battery()
         self._bat_level = 0  # 0 ok, 1 low, 2 critical (events once per crossing)
@@ -452,6 +488,8 @@ class Autopilot:
             return _rejected("Switching to Mission denied: no valid mission")
         if mode in _MANUAL_MODES and not self._manual_fresh(now_s):
             return _rejected(f"Switching to {mode.name} denied: no manual control (RC)")
+        if mode == FlightMode.ORBIT and (not self._armed or self._on_ground):  # [fence]
+            return _rejected("Switching to Orbit denied: not flying")
         if mode == FlightMode.AUTO_TAKEOFF:
             if self._armed:
                 self._start_takeoff(self.params.get("MIS_TAKEOFF_ALT"))
@@ -463,7 +501,7 @@ class Autopilot:
         return ACCEPTED
 
     def reposition(self, now_s: float, north_m: float, east_m: float, down_m: float, yaw_rad: float | None,
-                   speed_m_s: float | None = None) -> Outcome:  # fmt: skip
+                   speed_m_s: float | None = None, change_mode: bool = True) -> Outcome:  # fmt: skip
         self._now_s = now_s
         if not self._armed:
             return _denied("Reposition denied: vehicle not armed")
@@ -485,6 +523,10 @@ class Autopilot:
             speed_m_s = None
         if not self._inside(float(target[0]), float(target[1])):
             return _denied("Reposition denied: target outside footage")
+        if not change_mode and self._mode != FlightMode.AUTO_LOITER:  # [fence] PX4: kept for the next Hold
+            self._pending_reposition = (target, yaw_rad, speed_m_s)
+            return ACCEPTED
+        self._pending_reposition = None
         self._enter_mode(FlightMode.AUTO_LOITER, now_s)
         self._hold = target
         self._hold_yaw = yaw_rad
@@ -523,7 +565,8 @@ class Autopilot:
     def set_mission(self, items: Sequence[MissionItem]) -> Outcome:
         items = tuple(items)
         try:
-            validate_mission(items, self.home_ned_m, self._inside, self.params.get("MIS_DIST_1WP"))
+            validate_mission(items, self.home_ned_m, self._inside, self.params.get("MIS_DIST_1WP"),
+                             fence_ok=self._fence_ok)  # fmt: skip
         except ValueError as e:
             return _denied(str(e))
         self._mission = items
@@ -559,6 +602,69 @@ class Autopilot:
         self._home = np.array(home_ned_m, dtype=np.float64)
         self._home_set = True
         return ACCEPTED
+
+    # --- [fence] geofence, rally points, orbit, payload (logic in geofence.py / orbit.py / payload.py) ---------
+    @property
+    def geofence(self) -> Geofence:
+        return self._fence
+
+    @property
+    def rally_points(self) -> tuple[RallyPoint, ...]:
+        return self._rally
+
+    def set_geofence(self, fence: Geofence) -> Outcome:
+        """MISSION_TYPE_FENCE upload (already validated geometry). An empty Geofence clears it."""
+        self._fence = fence
+        self._fence_breached = False
+        self._fence_next_check_s = -math.inf
+        return ACCEPTED
+
+    def set_rally_points(self, points: Sequence[RallyPoint]) -> Outcome:
+        self._rally = tuple(points)
+        return ACCEPTED
+
+    def orbit(self, now_s: float, radius_m: float, velocity_m_s: float, yaw_behaviour: float,
+              center_ne_m: tuple[float, float] | None, center_down_m: float | None) -> Outcome:  # fmt: skip
+        """MAV_CMD_DO_ORBIT: NaN radius/velocity/yaw behaviour keep the current orbit's (or PX4's defaults)."""
+        self._now_s = now_s
+        if not self._armed:
+            return _denied("Orbit denied: vehicle not armed")
+        if self._on_ground:
+            return _rejected("Orbit denied: landed, take off first")
+        if center_ne_m is not None and not finite(*center_ne_m):
+            center_ne_m = None
+        pos = self._pos
+        prev = self._orbit if self._mode == FlightMode.ORBIT else None
+        if prev is None and center_ne_m is None:
+            center_ne_m = (float(pos[0]), float(pos[1]))
+        try:
+            orbit = apply_command(prev, pos, self._yaw, radius_m, velocity_m_s, yaw_behaviour, center_ne_m,
+                                  center_down_m, self.params.get("MC_ORBIT_RAD_MAX"))  # fmt: skip
+        except ValueError as e:
+            return _denied(str(e))
+        if self._mode != FlightMode.ORBIT:
+            self._enter_mode(FlightMode.ORBIT, now_s)
+        self._orbit = orbit
+        self._orbit_approach = True
+        return ACCEPTED
+
+    @property
+    def orbit_status(self) -> Orbit | None:
+        """The orbit flown now (ORBIT_EXECUTION_STATUS), None outside Orbit mode."""
+        return self._orbit if self._mode == FlightMode.ORBIT else None
+
+    @property
+    def gimbal_pitch_yaw_deg(self) -> tuple[float, float]:
+        """Last gimbal pitch/yaw a mission item asked for (DO_MOUNT_CONTROL / DO_GIMBAL_MANAGER_PITCHYAW)."""
+        return self._gimbal_deg
+
+    def pop_payload_actions(self) -> list[PayloadAction]:
+        """Camera actions asked for by mission items / the distance trigger since the last call."""
+        out, self._payload = self._payload, []
+        return out
+
+    def _fence_ok(self, north_m: float, east_m: float) -> bool:
+        return self._fence.empty or self._fence.contains(north_m, east_m)
 
     # --- streams (ignored with a reason when NaN/inf or out of range; never raise) -----
     def set_position_target(self, now_s: float, target: PositionTarget) -> Outcome:
@@ -630,6 +736,15 @@ class Autopilot:
         if mode == FlightMode.AUTO_LOITER:
             self._hold = self._braking_point() if not self._on_ground else self._pos.copy()
             self._hold_yaw = None
+            if self._pending_reposition is not None and self._armed and not self._on_ground:  # [fence]
+                self._hold, self._hold_yaw, speed = self._pending_reposition
+                self._pending_reposition = None
+                if speed is not None:
+                    self._speed_override = min(speed, self.params.get("MPC_XY_VEL_MAX"))
+        elif mode == FlightMode.ORBIT:  # [fence] PX4 defaults: around the current position, 1 m, 1 m/s
+            self._orbit = apply_command(None, self._pos, self._yaw, math.nan, math.nan, math.nan, None, None,
+                                        self.params.get("MC_ORBIT_RAD_MAX"))  # fmt: skip
+            self._orbit_approach = True
         elif mode == FlightMode.AUTO_LAND:
             pos = self._braking_point()
             self._land_xy = (float(pos[0]), float(pos[1]))
@@ -664,10 +779,14 @@ class Autopilot:
 
     def _start_rtl(self) -> None:
         pos = self._pos
+        dest, rally_i = rtl_destination(pos, self._home, self._rally)  # [fence] RTL_TYPE 0
+        self._rtl_dest = np.array(dest, dtype=np.float64)
+        if rally_i is not None:
+            self._event(Severity.INFO, f"RTL: returning to rally point {rally_i}")
         self._rtl_alt_down = float(min(pos[2], self._home[2] - self.params.get("RTL_RETURN_ALT")))
         self._rtl_phase = RtlPhase.LAND if self._on_ground else RtlPhase.CLIMB
         self._hold = self._braking_point()
-        self._land_xy = (float(self._home[0]), float(self._home[1]))
+        self._land_xy = (float(self._rtl_dest[0]), float(self._rtl_dest[1]))
 
     def _failsafe(self, action: int, reason: str, *, kind: str) -> None:
         """Apply a PX4 failsafe action code: 1 Hold, 2 Return, 3 Land, 5 Terminate, 6 Lockdown (disarm)."""
@@ -723,6 +842,7 @@ class Autopilot:
             self._event(Severity.CRITICAL, "Connection to ground station lost")
             if in_air and act in (1, 2, 3, 5, 6):
                 self._failsafe(act, "no GCS", kind="GCS lost")
+        self._check_fence(now_s, in_air)  # [fence] uploaded geofence
         # Geofence: the footage edge, at 10 Hz.
         if self.inside is not None and now_s >= self._gf_next_check_s:
             self._gf_next_check_s = now_s + GEOFENCE_CHECK_S
@@ -746,6 +866,33 @@ class Autopilot:
                         self._failsafe({3: 2, 5: 3}[act], "geofence", kind="Geofence")
                     elif act == 4:
                         self._failsafe(5, "geofence", kind="Geofence")
+
+    def _check_fence(self, now_s: float, in_air: bool) -> None:
+        """[fence] The uploaded geofence and GF_MAX_HOR/VER_DIST, at 10 Hz; GF_ACTION once per breach."""
+        if now_s < self._fence_next_check_s:
+            return
+        self._fence_next_check_s = now_s + GEOFENCE_CHECK_S
+        p = self.params
+        limits = FenceLimits(p.get("GF_MAX_HOR_DIST"), p.get("GF_MAX_VER_DIST"))
+        reason = breach_reason(self._fence, self._pos, self._home, limits)
+        if reason is None:
+            self._fence_breached = False
+            return
+        if self._fence_breached or not in_air:
+            return
+        self._fence_breached = True
+        act = p.get_int("GF_ACTION")
+        if act == GeofenceAction.NONE:
+            return
+        self._event(Severity.CRITICAL, f"Geofence breached: {reason}")
+        if act == GeofenceAction.HOLD:
+            self._failsafe(1, "geofence", kind="Geofence")
+        elif act == GeofenceAction.RETURN:
+            self._failsafe(2, "geofence", kind="Geofence")
+        elif act == GeofenceAction.LAND:
+            self._failsafe(3, "geofence", kind="Geofence")
+        elif act == GeofenceAction.TERMINATE:
+            self._failsafe(5, "geofence", kind="Geofence")
 
     # --- the control loop: called once per physics step -------------------------------
     def update(self, now_s: float, state: EavState) -> EavCommand:
@@ -776,6 +923,10 @@ class Autopilot:
                 self._ctrl.reset()
                 self._yaw_sp = state.yaw_rad if math.isfinite(state.yaw_rad) else 0.0
                 cmd = EavCommand(0.0, 0.0, self._yaw_sp, eav.hover_thrust_n)
+        if self._armed and self._trigger.update(
+            float(state.pos_ned_m[0]), float(state.pos_ned_m[1])
+        ):  # [fence]
+            self._payload.append(PayloadAction("capture_once"))
         hover = eav.hover_thrust_n
         self._battery.update(dt, cmd.thrust_n / hover, self._armed, self._battery_cfg())
         self._check_battery(p)
@@ -920,6 +1071,8 @@ class Autopilot:
             return self._ctl_mission(now_s, dt, state, eav)
         if mode == FlightMode.OFFBOARD:
             return self._ctl_offboard(now_s, dt, state, eav)
+        if mode == FlightMode.ORBIT:  # [fence]
+            return self._ctl_orbit(dt, state, eav)
         if mode in _MANUAL_MODES:
             return self._ctl_manual(now_s, dt, state, eav)
         return self._ctl_hold(dt, state, eav)
@@ -936,6 +1089,22 @@ class Autopilot:
         sp = TrajectorySetpoint(pos_ned_m=(float(target[0]), float(target[1]), float(target[2])))
         return self._run_position(dt, state, sp, self._limits(xy=self._cruise(), auto=True), eav, yaw_target,
                                   self._yaw_rate_auto())  # fmt: skip
+
+    def _ctl_orbit(self, dt: float, state: EavState, eav: EavParams) -> EavCommand:  # [fence]
+        if self._orbit is None:
+            self._orbit = apply_command(None, state.pos_ned_m, state.yaw_rad, math.nan, math.nan, math.nan, None,
+                                        None, self.params.get("MC_ORBIT_RAD_MAX"))  # fmt: skip
+        step = orbit_step(
+            self._orbit, state.pos_ned_m, self._orbit_approach, self.params.get("NAV_MC_ALT_RAD")
+        )
+        self._orbit_approach = step.approaching
+        xy = self.params.get("MPC_XY_CRUISE") if step.approaching else self.params.get("MPC_XY_VEL_MAX")
+        limits = self._limits(xy=xy, auto=True)
+        if (
+            not step.approaching
+        ):  # the circle's own acceleration feed-forward: no slew (it would count it twice)
+            limits = replace(limits, slew_acc_xy_m_s2=math.inf)
+        return self._run_position(dt, state, step.setpoint, limits, eav, step.yaw_rad, self._yaw_rate_auto())
 
     def _ctl_takeoff(self, now_s: float, dt: float, state: EavState, eav: EavParams) -> EavCommand:
         if self._takeoff_target is None:
@@ -981,7 +1150,7 @@ class Autopilot:
     def _ctl_rtl(self, now_s: float, dt: float, state: EavState, eav: EavParams) -> EavCommand:
         p = self.params
         pos = np.asarray(state.pos_ned_m, dtype=np.float64)
-        home = self._home
+        home = self._rtl_dest if self._rtl_dest is not None else self._home  # [fence] home or a rally point
         if self._hold is None:
             self._hold = pos.copy()
         if self._rtl_phase == RtlPhase.CLIMB:
@@ -1020,10 +1189,17 @@ class Autopilot:
         mp.landing = False
         mp.climbing = False
         mp.climb_xy = None
+        mp.seq, mp.jumps_done, cycling = resolve_jumps(
+            self._mission, mp.seq, mp.jumps_done
+        )  # [fence] DO_JUMP
+        if cycling:
+            self._event(Severity.CRITICAL, cycling)
         if not (0 <= mp.seq < len(self._mission)):
             mp.finished = True
             return
-        it = self._mission[mp.seq]
+        it = resolve_item(
+            self._mission[mp.seq], float(self._home[2])
+        )  # [fence] relative altitude: home of now
         pos = self._pos
         if it.command == MissionCommand.NAV_TAKEOFF:
             down = (
@@ -1039,6 +1215,8 @@ class Autopilot:
             mp.target = np.array([it.north_m, it.east_m, it.down_m], dtype=np.float64)
             if self._on_ground and self._armed:
                 mp.climbing = True  # implicit take-off first
+        elif it.command == MissionCommand.NAV_DELAY:  # [fence] wait param1 s where the last item left us
+            mp.target = mp.target.copy() if mp.target is not None else pos.copy()
         else:
             mp.target = None
 
@@ -1069,6 +1247,8 @@ class Autopilot:
         self._start_item(now_s)
         if mp.target is None:
             mp.target = last_target
+        if mp.finished:  # [fence] a DO_JUMP chain ended the mission
+            self._event(Severity.INFO, "Mission finished, loitering")
 
     def _ctl_mission(
         self, now_s: float, dt: float, state: EavState, eav: EavParams, depth: int = 0
@@ -1091,6 +1271,10 @@ class Autopilot:
             if it.command == MissionCommand.NAV_RETURN_TO_LAUNCH:
                 self._mission_item_done(now_s)
                 return self._ctl_rtl(now_s, dt, state, eav)
+            if it.command not in NAV_COMMANDS:  # [fence] camera / gimbal / other DO items: at once
+                self._do_item(it, pos)
+                self._mission_item_done(now_s)
+                continue
             break
         if self._mode != FlightMode.AUTO_MISSION:
             return self._control(now_s, dt, state, eav)
@@ -1162,13 +1346,21 @@ class Autopilot:
                 if self._mode != FlightMode.AUTO_MISSION:
                     return self._control(now_s, dt, state, eav)
                 if not mp.finished:
-                    nxt = self._mission[mp.seq]
-                    if nxt.command in NAV_COMMANDS or nxt.command == MissionCommand.DO_CHANGE_SPEED:
-                        return self._ctl_mission(now_s, dt, state, eav, depth + 1)
+                    return self._ctl_mission(now_s, dt, state, eav, depth + 1)
         tgt = mp.target if mp.target is not None else target
         sp = TrajectorySetpoint(pos_ned_m=(float(tgt[0]), float(tgt[1]), float(tgt[2])))
         return self._run_position(dt, state, sp, limits, eav, self._mission_yaw(it, pos, tgt),
                                   self._yaw_rate_auto())  # fmt: skip
+
+    def _do_item(self, it: MissionItem, pos: Vec3) -> None:  # [fence]
+        eff = item_effect(it)
+        self._payload.extend(eff.actions)
+        if eff.gimbal_deg is not None:
+            self._gimbal_deg = eff.gimbal_deg
+        if eff.trigger_dist_m is not None:
+            self._trigger.set(eff.trigger_dist_m, float(pos[0]), float(pos[1]))
+        if eff.note:
+            self._event(Severity.INFO, eff.note)
 
     def _mission_yaw(self, it: MissionItem, pos: Vec3, target: Vec3) -> float | None:
         return mission_yaw(it, pos, target, self._home, self.params.get_int("MIS_YAWMODE"))
