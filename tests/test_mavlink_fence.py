@@ -192,8 +192,9 @@ def test_breach_returns_to_the_nearest_rally_point(client: MavClient, vehicle: V
 def test_do_orbit_mode_and_execution_status(client: MavClient, vehicle: VehicleThread) -> None:
     _fly_to(client)
     x, y = _ll(10.0, 0.0)
+    # z is AMSL whatever the frame, as PX4's Orbit task reads it (and MAVSDK sends it)
     client.send(client.mav.command_int_encode(1, 1, M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, M.MAV_CMD_DO_ORBIT, 0, 0,
-                                              -8.0, 2.0, 0, NAN, x, y, 7.0))  # fmt: skip
+                                              -8.0, 2.0, 0, NAN, x, y, 488.0 + 7.0))  # fmt: skip
     a = client.wait_for(lambda m: m.get_type() == "COMMAND_ACK" and m.command == M.MAV_CMD_DO_ORBIT, 1.0)
     assert a is not None and a.result == M.MAV_RESULT_ACCEPTED
     orbit = FlightMode.ORBIT.custom_mode

@@ -268,7 +268,7 @@ class CommandHandler:
 
     def _orbit(self, origin: Origin, req: CommandRequest) -> tuple[Outcome, list[MavMessage]]:
         """MAV_CMD_DO_ORBIT: p1 radius (sign = direction), p2 speed, p3 ORBIT_YAW_BEHAVIOUR, lat/lon centre and
-        altitude (NaN / unset: the current orbit's, or the vehicle's position and altitude)."""
+        AMSL altitude (NaN / unset: the current orbit's, or the vehicle's position and altitude)."""
         center: tuple[float, float] | None = None
         if math.isfinite(req.lat_deg) and math.isfinite(req.lon_deg):
             if not (-90.0 <= req.lat_deg <= 90.0 and -180.0 <= req.lon_deg <= 180.0):
@@ -277,9 +277,9 @@ class CommandHandler:
                 req.lat_deg, req.lon_deg, self.vehicle.geo.alt_amsl_m
             )
             center = (north, east)
-        down = self._down_from_alt(req.alt_m, req.frame)
-        if down is None and math.isfinite(req.alt_m):
-            return _ok(CommandResult.DENIED, f"Orbit: unsupported frame {req.frame}"), []
+        # PX4's Orbit task reads param7 / z as AMSL whatever the frame (MAVSDK's do_orbit sends an absolute altitude
+        # in a COMMAND_INT with frame GLOBAL_RELATIVE_ALT): do the same
+        down = self._down_from_alt(req.alt_m, M.MAV_FRAME_GLOBAL)
         ap = self.vehicle.autopilot
         return ap.orbit(self._now, req.p1, req.p2, req.p3, center, down), []
 
