@@ -274,3 +274,13 @@ def test_reposition_without_change_mode_only_moves_an_active_hold() -> None:
     assert f.run(25.0, until=lambda f: abs(f.pos[0] - 20.0) < 0.5 and abs(f.pos[1]) < 0.5)
     assert f.ap.reposition(f.t, 20.0, 10.0, -5.0, None, change_mode=False).ok  # in Hold: moves at once
     assert f.run(20.0, until=lambda f: abs(f.pos[1] - 10.0) < 0.5)
+
+
+def test_arming_outside_the_fence_is_refused_unless_gf_action_is_none() -> None:
+    f = Flight()
+    f.run(0.1)
+    f.ap.set_geofence(Geofence(circles=(CircleFence((100.0, 0.0), 10.0),)))
+    out = f.ap.arm(f.t)
+    assert out.result == CommandResult.DENIED and out.reason == "Arming denied: vehicle outside geofence"
+    f.params.set("GF_ACTION", 0)
+    assert f.ap.arm(f.t).ok

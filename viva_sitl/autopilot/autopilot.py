@@ -389,6 +389,8 @@ class Autopilot:
         pos = self._pos
         if not self._inside(float(pos[0]), float(pos[1])):
             return _denied("Arming denied: outside footage (geofence)")
+        if self.params.get_int("GF_ACTION") != 0 and not self._fence_ok(float(pos[0]), float(pos[1])):  # [fence]
+            return _denied("Arming denied: vehicle outside geofence")
         if self.battery_remaining <= self.params.get("BAT_CRIT_THR"):
             return _denied("Arming denied: battery too low")
         mode = self._mode
