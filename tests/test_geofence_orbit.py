@@ -88,7 +88,7 @@ def test_px4_fence_semantics_inclusions_union_exclusions_cut_out() -> None:
     assert breach_reason(Geofence(), (300.0, 0.0, -10.0), home) is None
     assert breach_reason(Geofence(), (300.0, 0.0, -10.0), home, FenceLimits(max_hor_dist_m=200.0)) is not None
     assert breach_reason(Geofence(), (0.0, 0.0, -60.0), home, FenceLimits(max_ver_dist_m=50.0)) is not None
-    assert breach_reason(fence, (75.0, 0.0, -5.0), home) == "Geofence violated"
+    assert breach_reason(fence, (75.0, 0.0, -5.0), home) == "outside the fence"
 
 
 def test_rtl_destination_is_the_closest_of_home_and_rally_points() -> None:
@@ -284,3 +284,14 @@ def test_arming_outside_the_fence_is_refused_unless_gf_action_is_none() -> None:
     assert out.result == CommandResult.DENIED and out.reason == "Arming denied: vehicle outside geofence"
     f.params.set("GF_ACTION", 0)
     assert f.ap.arm(f.t).ok
+
+
+def test_a_new_fence_invalidates_a_stored_mission_outside_it() -> None:
+    f = Flight(MIS_DIST_1WP=0.0)
+    f.run(0.1)
+    assert f.ap.set_mission([MissionItem(0, MissionCommand.NAV_WAYPOINT, 60.0, 0.0, -5.0)]).ok
+    f.ap.set_geofence(_square(20.0))
+    assert "Geofence violation for waypoint 1" in [e.text for e in f.ap.pop_events()]
+    assert f.ap.set_mode(f.t, FlightMode.AUTO_MISSION).result == CommandResult.TEMPORARILY_REJECTED
+    f.ap.set_geofence(Geofence())
+    assert f.ap.set_mode(f.t, FlightMode.AUTO_MISSION).ok

@@ -189,12 +189,16 @@ def test_mission_frames_convert_to_ned() -> None:
     jump = wire_to_item(_wire(M.MAV_FRAME_MISSION, 177, 0, 0, 0.0), v)
     assert jump.command == MissionCommand.DO_JUMP and jump.param2 == 2.0
     vtol = wire_to_item(_wire(M.MAV_FRAME_MISSION, M.MAV_CMD_DO_VTOL_TRANSITION, 0, 0, 0.0), v)
-    assert vtol.command == MissionCommand.OTHER and vtol.raw_command == M.MAV_CMD_DO_VTOL_TRANSITION  # skipped
+    assert (
+        vtol.command == MissionCommand.OTHER and vtol.raw_command == M.MAV_CMD_DO_VTOL_TRANSITION
+    )  # skipped
     with pytest.raises(ItemError) as err:
         wire_to_item(_wire(M.MAV_FRAME_GLOBAL, 31999, 0, 0, 1.0), v)  # not a MAV_CMD
     assert err.value.result == M.MAV_MISSION_UNSUPPORTED
     with pytest.raises(ItemError) as err:
-        wire_to_item(_wire(M.MAV_FRAME_GLOBAL, M.MAV_CMD_NAV_LOITER_TURNS, 0, 0, 1.0), v)  # a NAV we cannot fly
+        wire_to_item(
+            _wire(M.MAV_FRAME_GLOBAL, M.MAV_CMD_NAV_LOITER_TURNS, 0, 0, 1.0), v
+        )  # a NAV we cannot fly
     assert err.value.result == M.MAV_MISSION_UNSUPPORTED
     with pytest.raises(ItemError) as err:
         wire_to_item(_wire(M.MAV_FRAME_GLOBAL_INT, wp, 95 * 10**7, 0, 1.0), v)

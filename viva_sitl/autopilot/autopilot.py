@@ -389,7 +389,9 @@ class Autopilot:
         pos = self._pos
         if not self._inside(float(pos[0]), float(pos[1])):
             return _denied("Arming denied: outside footage (geofence)")
-        if self.params.get_int("GF_ACTION") != 0 and not self._fence_ok(float(pos[0]), float(pos[1])):  # [fence]
+        if self.params.get_int("GF_ACTION") != 0 and not self._fence_ok(
+            float(pos[0]), float(pos[1])
+        ):  # [fence]
             return _denied("Arming denied: vehicle outside geofence")
         if self.battery_remaining <= self.params.get("BAT_CRIT_THR"):
             return _denied("Arming denied: battery too low")
@@ -615,10 +617,19 @@ class Autopilot:
         return self._rally
 
     def set_geofence(self, fence: Geofence) -> Outcome:
-        """MISSION_TYPE_FENCE upload (already validated geometry). An empty Geofence clears it."""
+        """MISSION_TYPE_FENCE upload (already validated geometry). An empty Geofence clears it. As PX4, the stored
+        mission is checked again: one with a waypoint outside the new fence becomes invalid (not startable)."""
         self._fence = fence
         self._fence_breached = False
         self._fence_next_check_s = -math.inf
+        if self._mission:
+            try:
+                validate_mission(self._mission, self.home_ned_m, self._inside, self.params.get("MIS_DIST_1WP"),
+                                 fence_ok=self._fence_ok)  # fmt: skip
+                self._mission_valid = True
+            except ValueError as e:
+                self._mission_valid = False
+                self._event(Severity.WARNING, str(e))
         return ACCEPTED
 
     def set_rally_points(self, points: Sequence[RallyPoint]) -> Outcome:
@@ -759,7 +770,9 @@ class Autopilot:
             if prev != FlightMode.AUTO_MISSION or self._mp.finished:
                 if self._mp.finished:
                     self._mp = MissionProgress(seq=0)
-                self._mp = MissionProgress(seq=self._mp.seq)
+                self._mp = MissionProgress(
+                    seq=self._mp.seq, jumps_done=self._mp.jumps_done
+                )  # [fence] keep counts
                 self._start_item(now_s)
         elif mode == FlightMode.OFFBOARD:
             self._offb_rate_att = None

@@ -191,11 +191,11 @@ def breach_reason(
     limits = limits or FenceLimits()
     n, e, d = float(pos_ned_m[0]), float(pos_ned_m[1]), float(pos_ned_m[2])
     if limits.max_hor_dist_m > 0 and math.hypot(n - home_ned_m[0], e - home_ned_m[1]) > limits.max_hor_dist_m:
-        return "Maximum distance from home exceeded"
+        return "maximum distance from home exceeded"
     if limits.max_ver_dist_m > 0 and (home_ned_m[2] - d) > limits.max_ver_dist_m:
-        return "Maximum altitude exceeded"
+        return "maximum altitude exceeded"
     if not fence.empty and not fence.contains(n, e):
-        return "Geofence violated"
+        return "outside the fence"
     return None
 
 

@@ -283,7 +283,7 @@ def item_to_wire(item: MissionItem, vehicle: VehicleLink) -> WireItem:
     z = home_down - item.down_m if math.isfinite(item.down_m) else 0.0
     frame = M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT if item.command in _POSITIONAL else M.MAV_FRAME_MISSION
     return WireItem(
-        item.seq, frame, int(item.command), 0, int(item.autocontinue),
+        item.seq, frame, item.raw_command or int(item.command), 0, int(item.autocontinue),
         item.param1, item.param2, item.param3, item.param4, x, y, z,
     )  # fmt: skip
 
