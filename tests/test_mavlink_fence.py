@@ -7,6 +7,7 @@ from __future__ import annotations
 import math
 import struct
 from collections.abc import Iterator
+from pathlib import Path
 
 import pytest
 from pymavlink.dialects.v20 import common as M
@@ -14,7 +15,7 @@ from pymavlink.dialects.v20 import common as M
 from viva_sitl.autopilot import FlightMode
 from viva_sitl.geo import GeoOrigin
 from viva_sitl.mavlink import MavlinkConfig
-from viva_sitl.mavlink.selftest import MavClient, VehicleThread
+from viva_sitl.mavlink.selftest import MavClient, SnapshotCamera, VehicleThread
 
 NAN = math.nan
 GEO = GeoOrigin()
@@ -243,3 +244,36 @@ def test_mission_with_do_jump_is_flown_with_its_visit_count(
         assert m is not None, f"mission stalled after {reached}"
         reached.append(int(m.seq))
     assert reached == [0, 1, 2, 1, 2, 4, 5]
+
+
+def test_mission_camera_items_capture_the_vac_view(client: MavClient, tmp_path: Path) -> None:
+    camera = SnapshotCamera(tmp_path / "captures")
+    cfg = MavlinkConfig(api_remote_port=client.port, gcs_remote_port=0, api_local_port=0, gcs_local_port=0)
+    rel = M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT
+    items: list[Item] = [
+        (rel, M.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, NAN, 0, 0, 4.0),
+        (M.MAV_FRAME_MISSION, M.MAV_CMD_IMAGE_START_CAPTURE, 0, 0, 1, 0, 0, 0, 0.0),  # one image
+        (M.MAV_FRAME_MISSION, M.MAV_CMD_DO_SET_CAM_TRIGG_DIST, 5.0, 0, 0, 0, 0, 0, 0.0),  # every 5 m
+        (rel, M.MAV_CMD_NAV_WAYPOINT, 0, 0, 0, NAN, *_ll(23, 0), 4.0),
+        (M.MAV_FRAME_MISSION, M.MAV_CMD_DO_SET_CAM_TRIGG_DIST, 0.0, 0, 0, 0, 0, 0, 0.0),  # off
+        (M.MAV_FRAME_MISSION, M.MAV_CMD_DO_MOUNT_CONTROL, -45.0, 0, 10.0, 0, 0, 0, 0.0),  # gimbal: recorded
+        (rel, M.MAV_CMD_NAV_WAYPOINT, 0, 0, 0, NAN, *_ll(23, 12), 4.0),
+        (rel, M.MAV_CMD_NAV_LAND, 0, 0, 0, NAN, 0, 0, 0.0),
+    ]
+    with VehicleThread(cfg, speed=4.0, camera=camera) as vt:
+        client.target = vt.api
+        assert _upload(client, items, MISSION) == M.MAV_MISSION_ACCEPTED
+        assert client.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1).result == M.MAV_RESULT_ACCEPTED  # type: ignore[union-attr]
+        assert client.command(M.MAV_CMD_MISSION_START, 0, 0).result == M.MAV_RESULT_ACCEPTED  # type: ignore[union-attr]
+        assert client.wait_for(lambda m: m.get_type() == "MISSION_ITEM_REACHED" and m.seq == 6, 60.0)
+        ap = vt.vehicle.autopilot  # type: ignore[union-attr]
+        assert vt.call(lambda: ap.gimbal_pitch_yaw_deg) == (-45.0, 10.0)
+    captured = [m for _, m in client.received if m.get_type() == "CAMERA_IMAGE_CAPTURED"]
+    # 1 at the start + one per 5 m over the 23 m leg (4: the waypoint is accepted within NAV_ACC_RAD), none on the second leg (trigger off)
+    assert len(captured) == 5 and len(camera.captured) == 5, (len(captured), camera.captured)
+    assert all(m.capture_result == 1 for m in captured)
+    norths = [GEO.global_to_ned(m.lat * 1e-7, m.lon * 1e-7, 0.0)[0] for m in captured]
+    # the capture reports where the vehicle is when the camera runs (the housekeeping tick after the trigger)
+    assert norths[0] < 1.0 and all(
+        b - a == pytest.approx(5.0, abs=1.0) for a, b in zip(norths[1:], norths[2:], strict=False)
+    )
