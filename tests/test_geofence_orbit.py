@@ -26,6 +26,7 @@ from viva_sitl.autopilot.geofence import (
 )
 from viva_sitl.autopilot.mission import resolve_jumps, validate_mission
 from viva_sitl.autopilot.orbit import Orbit, OrbitYaw, apply_command, orbit_step
+from viva_sitl.autopilot.payload import DistanceTrigger
 
 NAN = math.nan
 
@@ -295,3 +296,12 @@ def test_a_new_fence_invalidates_a_stored_mission_outside_it() -> None:
     assert f.ap.set_mode(f.t, FlightMode.AUTO_MISSION).result == CommandResult.TEMPORARILY_REJECTED
     f.ap.set_geofence(Geofence())
     assert f.ap.set_mode(f.t, FlightMode.AUTO_MISSION).ok
+
+
+def test_distance_trigger_fires_every_distance_and_stops_at_zero() -> None:
+    trig = DistanceTrigger()
+    trig.set(5.0, 0.0, 0.0)
+    fired = [n for n in np.arange(0.0, 23.0, 0.1) if trig.update(float(n), 0.0)]
+    assert fired == pytest.approx([5.0, 10.0, 15.0, 20.0], abs=0.11)
+    trig.set(0.0, 0.0, 0.0)
+    assert not any(trig.update(float(n), 0.0) for n in np.arange(0.0, 50.0, 1.0))

