@@ -125,7 +125,7 @@ def bench_ingest(path: Path, work: Path, n: int, repeat: int) -> dict[str, float
     t0 = time.perf_counter()
     built = not (dest / "full.mp4").exists()
     if built:
-        if path != SHARED_CLIP:  # the shared clip's metadata is configs/footage/interchange.toml
+        if path != SHARED_CLIP:  # the shared clip's metadata is viva_sitl/data/footage/interchange.toml
             path.with_suffix(".toml").write_text("recording_altitude_m = 100.0\nhfov_deg = 82.1\n")
         ingest(path, out_dir=dest, levels=2, show_progress=False, max_frames=n + 1)
     out = {"ingest_build_s": time.perf_counter() - t0 if built else float("nan")}  # nan: cache reused

@@ -290,7 +290,7 @@ def main() -> int:
             for p in sitl.ready_line.split(" | ")
             if " rtp sdp " in p
         }
-        frames_ep = sitl.ready_line.rsplit("frames ", 1)[1].strip()
+        frames_ep = sitl.ready_line.rsplit("frames ", 1)[1].split(" | ")[0].strip()
         meta = MetaCollector(frames_ep)
         clients: dict[str, tuple[subprocess.Popen[bytes], Path]] = {}
         for kind, sdp in parts.items():

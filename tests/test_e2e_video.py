@@ -104,7 +104,7 @@ def video_sitl(tmp_path_factory: pytest.TempPathFactory) -> Iterator[VideoSitl]:
     sitl.start()
     try:
         line = sitl.ready_line
-        frames = line.rsplit("frames ", 1)[1].strip()
+        frames = line.rsplit("frames ", 1)[1].split(" | ")[0].strip()
         yield VideoSitl(
             sitl,
             _sdp_from_ready(line, "h264"),
@@ -527,7 +527,7 @@ def test_slow_encoder_and_stalled_client_do_not_slow_physics(tmp_path: Path) -> 
     stalled.setsockopt(zmq.RCVHWM, 1)
     stalled.setsockopt(zmq.LINGER, 0)
     stalled.subscribe(b"")
-    stalled.connect(sitl.ready_line.rsplit("frames ", 1)[1].strip())
+    stalled.connect(sitl.ready_line.rsplit("frames ", 1)[1].split(" | ")[0].strip())
     try:
         peer.wait_autopilot()
         takeoff(peer, 5.0, timeout_s=30.0)  # physics and the autopilot busy while the encoder starves

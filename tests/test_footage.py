@@ -30,7 +30,7 @@ from viva_sitl.footage.testclip import read_code, write_coded_clip
 
 REPO = Path(__file__).resolve().parents[1]
 SHARED = Path(__file__).resolve().parents[2] / "shared"
-CONFIGS = REPO / "configs" / "footage"
+CONFIGS = REPO / "viva_sitl" / "data" / "footage"
 needs_shared = pytest.mark.skipif(
     not (SHARED / "footage").is_dir(), reason=f"shared footage folder {SHARED / 'footage'} is absent"
 )
@@ -414,11 +414,19 @@ def test_srt_parsing() -> None:
     assert parse_srt_text("not a subtitle file").samples == ()
 
 
-def test_srt_sidecar_gives_altitude_and_home(tmp_path: Path, clip: Path) -> None:
+def test_srt_sidecar_gives_altitude_and_home(
+    tmp_path: Path, clip: Path, caplog: pytest.LogCaptureFixture
+) -> None:
     video = tmp_path / "DJI_0042.MP4"
     video.write_bytes(clip.read_bytes())
-    with pytest.raises(FootageError, match="recording altitude is unknown|ground scale is unknown"):
-        open_footage(video)  # no metadata, no sidecar
+    with (
+        caplog.at_level("WARNING"),
+        open_footage(video) as src,
+    ):  # no metadata, no sidecar: the paper's defaults
+        assert src.geometry.recording_altitude_m == 100.0
+        assert src.geometry.recording_hfov_deg == pytest.approx(82.1)
+    warnings = [r for r in caplog.records if r.levelname == "WARNING"]
+    assert len(warnings) == 1 and "--footage-alt" in warnings[0].getMessage()
     (tmp_path / "DJI_0042.SRT").write_text(SRT_MINI4)
     with open_footage(video, hfov_deg=82.1) as src:
         assert src.geometry.recording_altitude_m == pytest.approx(87.4)

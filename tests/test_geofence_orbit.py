@@ -199,7 +199,7 @@ def test_orbit_holds_radius_and_direction(radius: float) -> None:
     f.take_off(6.0)
     assert f.ap.orbit(f.t, radius, 3.0, 0, (5.0, 0.0), -8.0).ok
     assert f.ap.mode == FlightMode.ORBIT
-    assert f.run(30.0, until=lambda f: f.ap.orbit_status is not None and not f.ap._orbit_approach)
+    assert f.run(30.0, until=lambda f: f.ap.orbit_status is not None and not f.ap.orbit_approaching)
     start = len(f.trace)
     f.run(25.0)
     pts = np.array([p for _, p, _ in f.trace[start:]])

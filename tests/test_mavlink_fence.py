@@ -10,12 +10,13 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
+from mav_client import MavClient, VehicleThread
 from pymavlink.dialects.v20 import common as M
 
 from viva_sitl.autopilot import FlightMode
 from viva_sitl.geo import GeoOrigin
 from viva_sitl.mavlink import MavlinkConfig
-from viva_sitl.mavlink.selftest import MavClient, SnapshotCamera, VehicleThread
+from viva_sitl.mavlink.selftest import SnapshotCamera
 
 NAN = math.nan
 GEO = GeoOrigin()

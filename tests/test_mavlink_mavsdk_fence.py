@@ -9,12 +9,12 @@ import json
 import math
 
 import pytest
+from mav_client import VehicleThread
 from test_mavlink_mavsdk import _first, _free_udp_port
 
 from viva_sitl.autopilot import FlightMode
 from viva_sitl.geo import GeoOrigin
 from viva_sitl.mavlink import MavlinkConfig
-from viva_sitl.mavlink.selftest import VehicleThread
 
 mavsdk_asyncio = pytest.importorskip(
     "mavsdk.asyncio", reason="MAVSDK 4.x (pip install mavsdk>=4) not installed"

@@ -1,20 +1,22 @@
 """Protocol-level tests of the MAVLink endpoint: a real MavlinkEndpoint over real UDP on 127.0.0.1 (free ports),
-driven by the real Autopilot + EAV dynamics (viva_sitl.mavlink.selftest.MinimalVehicle), and a pymavlink-codec client.
+driven by the real Autopilot + EAV dynamics (viva_sitl.mavlink.selftest.SelftestVehicle), and a pymavlink-codec client.
 """
 
 from __future__ import annotations
 
 import math
 import struct
+import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
+from mav_client import MavClient, VehicleThread
 from pymavlink.dialects.v20 import common as M
 
 from viva_sitl.autopilot import FlightMode, ParamStore
 from viva_sitl.mavlink import MavlinkConfig
-from viva_sitl.mavlink.selftest import MavClient, SnapshotCamera, VehicleThread
+from viva_sitl.mavlink.selftest import SnapshotCamera
 
 NAN = math.nan
 
@@ -135,20 +137,55 @@ def test_health_bits_mavsdk_reads(client: MavClient, vehicle: VehicleThread) -> 
 
 def test_param_list_has_every_index_once(client: MavClient, vehicle: VehicleThread) -> None:
     expected = ParamStore().names()
+    assert len(expected) > 1000
+    t0 = time.monotonic()
     client.send(client.mav.param_request_list_encode(1, 1))
+    first = client.wait_for("PARAM_VALUE", 1.0)
+    # PX4 answers with the _HASH_CHECK first (index -1 on the wire = 65535, UINT32), QGC's cache key
+    assert first is not None and first.param_id == "_HASH_CHECK"
+    assert first.param_index == 65535 and first.param_type == M.MAV_PARAM_TYPE_UINT32
+    assert first.param_count == len(expected)
     values: dict[int, M.MAVLink_message] = {}
-    for _ in range(200):
-        msg = client.wait_for("PARAM_VALUE", 1.0)
-        if msg is None:
-            break
+    # a PING answered while the list streams: the loop is not blocked
+    client.send(client.mav.ping_encode(123, 7, 0, 0))
+    ping_answered_after: int | None = None
+    while len(values) < len(expected) or ping_answered_after is None:
+        msg = client.wait_for(lambda m: m.get_type() in ("PARAM_VALUE", "PING"), 2.0)
+        assert msg is not None, f"list stalled after {len(values)} of {len(expected)}"
+        if msg.get_type() == "PING":
+            ping_answered_after = len(values) if msg.seq == 7 else ping_answered_after
+            continue
         assert msg.param_count == len(expected)
+        assert msg.param_index not in values, f"index {msg.param_index} twice"
         values[msg.param_index] = msg
-        if len(values) == len(expected):
-            break
+    elapsed = time.monotonic() - t0
     assert sorted(values) == list(range(len(expected)))
     assert [values[i].param_id for i in range(len(expected))] == expected
     mis = values[expected.index("MIS_TAKEOFF_ALT")]
     assert mis.param_type == M.MAV_PARAM_TYPE_REAL32 and mis.param_value == pytest.approx(2.5)
+    assert vehicle.stats()["param_list_values_sent"] == len(expected)  # each one once, no duplicates
+    auto = values[expected.index("SYS_AUTOSTART")]
+    assert auto.param_type == M.MAV_PARAM_TYPE_INT32 and _float_as_int(auto.param_value) == 4001
+    # paced (20 per 10 ms, as PX4's bursts), not one loop-blocking flood; and still quick
+    assert ping_answered_after is not None and ping_answered_after < len(expected) // 2
+    assert elapsed > 0.3, f"{len(expected)} parameters in {elapsed:.3f} s: not paced"
+    assert elapsed < 10.0
+
+
+def test_param_list_restart_and_hash_stop(client: MavClient, vehicle: VehicleThread) -> None:
+    n = len(ParamStore())
+    client.send(client.mav.param_request_list_encode(1, 1))
+    assert client.wait_for(lambda m: m.get_type() == "PARAM_VALUE" and m.param_index == 10, 2.0) is not None
+    # QGC's "my cache matches": PARAM_SET _HASH_CHECK stops the stream; nothing like the full list follows
+    client.send(client.mav.param_set_encode(1, 1, b"_HASH_CHECK", 0.0, M.MAV_PARAM_TYPE_UINT32))
+    client.drain()
+    tail = [m for m in client.poll(0.5) if m.get_type() == "PARAM_VALUE"]
+    assert len(tail) < n // 2, f"{len(tail)} PARAM_VALUEs after _HASH_CHECK"
+    # a new request lists everything again
+    client.drain()
+    client.send(client.mav.param_request_list_encode(1, 1))
+    last = client.wait_for(lambda m: m.get_type() == "PARAM_VALUE" and m.param_index == n - 1, 5.0)
+    assert last is not None
 
 
 def _int_as_float(v: int) -> float:
@@ -196,11 +233,20 @@ def test_param_rejections_as_px4(client: MavClient, vehicle: VehicleThread) -> N
     assert client.wait_for(lambda m: m.get_type() == "STATUSTEXT" and "mismatch" in m.text, 1.0) is not None
     assert vehicle.call(lambda: vehicle.vehicle.params.get("NAV_DLL_ACT")) == 0
 
-    # out of range: refused, and the unchanged value is announced
+    # out of range: stored and echoed as PX4 does (PX4 does not enforce min/max; the GCS warns)
     client.send(client.mav.param_set_encode(1, 1, b"MIS_TAKEOFF_ALT", 1e6, M.MAV_PARAM_TYPE_REAL32))
     pv = client.wait_for(lambda m: m.get_type() == "PARAM_VALUE" and m.param_id == "MIS_TAKEOFF_ALT", 1.0)
+    assert pv is not None and pv.param_value == pytest.approx(1e6)
+    client.send(client.mav.param_set_encode(1, 1, b"MIS_TAKEOFF_ALT", 2.5, M.MAV_PARAM_TYPE_REAL32))
+    pv = client.wait_for(lambda m: m.get_type() == "PARAM_VALUE" and m.param_id == "MIS_TAKEOFF_ALT", 1.0)
     assert pv is not None and pv.param_value == pytest.approx(2.5)
-    assert any(m.get_type() == "STATUSTEXT" and "MIS_TAKEOFF_ALT" in m.text for _, m in client.received)
+
+    # index beyond the list: no PARAM_VALUE, a STATUSTEXT
+    client.drain()
+    client.send(client.mav.param_request_read_encode(1, 1, b"", len(ParamStore())))
+    got = client.poll(0.5)
+    assert any(m.get_type() == "STATUSTEXT" and "unknown param" in m.text for m in got)
+    assert not any(m.get_type() == "PARAM_VALUE" for m in got)
 
     # NaN value
     client.send(client.mav.param_set_encode(1, 1, b"MIS_TAKEOFF_ALT", NAN, M.MAV_PARAM_TYPE_REAL32))
@@ -274,7 +320,7 @@ def test_gcs_link_answers_whoever_talks(client: MavClient, vehicle: VehicleThrea
         # the GCS link streams the onboard rates by default (ATTITUDE 100 Hz)
         assert _rate(gcs, "ATTITUDE", 1.5) == pytest.approx(100.0, rel=0.3)
         assert vehicle.call(
-            lambda: vehicle.vehicle.autopilot._gcs_seen
+            lambda: vehicle.vehicle.autopilot.commander.gcs_seen
         )  # GCS heartbeat reached the autopilot
     finally:
         gcs.close()

@@ -1,45 +1,105 @@
-"""ParamStore: PX4 names, types, defaults, ranges; the SIM_* parameters rebuild the EAV parameters."""
+"""ParamStore: PX4's parameter set (names, types, defaults, ranges), PX4's storage rules, the wired/stored split, the
+_HASH_CHECK value, and the SIM_* parameters that rebuild the EAV parameters.
+
+The expected values here are typed from PX4's parameter reference (docs.px4.io, "Parameter Reference"), not read
+from viva_sitl/data/px4_params.tsv or the wired table: a wrong generator, a wrong filter or a wrong merge fails them.
+"""
 
 from __future__ import annotations
 
 import math
+import re
+import struct
+from pathlib import Path
 
 import pytest
 
 from viva_sitl.autopilot import Autopilot, ParamStore, ParamType
+from viva_sitl.autopilot.params import ParamSpec
 from viva_sitl.dynamics import EavParams, WindParams
 
+INT, F = ParamType.INT32, ParamType.REAL32
 
-def test_defaults_and_types_follow_px4() -> None:
+# name: (type, default, min, max) from PX4's parameter reference; None = no documented bound.
+PX4_FACTS: dict[str, tuple[ParamType, float, float | None, float | None]] = {
+    "MPC_XY_CRUISE": (F, 5.0, 3.0, 20.0),
+    "MPC_XY_VEL_P_ACC": (F, 2.4, 1.2, 5.0),  # default: ours (PX4 1.8), see the wired table
+    "COM_RC_IN_MODE": (INT, 3, 0, 4),
+    "COM_DL_LOSS_T": (INT, 10, 5, 300),
+    "NAV_DLL_ACT": (INT, 0, 0, 6),
+    "GF_ACTION": (INT, 2, 0, 5),
+    "MIS_TAKEOFF_ALT": (F, 2.5, 0.0, 100.0),  # PX4 documents min 0 only; 100 is our safety bound
+    "RTL_RETURN_ALT": (F, 60.0, 0.0, 150.0),
+    "MPC_TILTMAX_AIR": (F, 45.0, 20.0, 89.0),
+    "MPC_THR_HOVER": (F, 0.5, 0.1, 0.8),
+    "BAT_LOW_THR": (F, 0.15, 0.12, 0.5),
+    "MC_ROLL_P": (F, 6.5, 0.0, 12.0),
+    "MC_YAW_P": (F, 2.8, 0.0, 5.0),
+    "MC_ROLLRATE_P": (F, 0.15, 0.01, 0.5),
+    "EKF2_GPS_CTRL": (INT, 7, 0, 15),
+    "MC_ORBIT_RAD_MAX": (F, 1000.0, 1.0, 10000.0),
+    "CBRK_SUPPLY_CHK": (INT, 0, 0, 894281),
+    "MAV_SYS_ID": (INT, 1, 1, 250),
+    "SYS_AUTOSTART": (INT, 4001, 0, 9999999),  # PX4 SITL's default airframe (gz_x500), not the metadata's 0
+    "MAV_TYPE": (INT, 2, 0, 22),  # a quadrotor, as our HEARTBEAT says
+    "COM_RCL_EXCEPT": (INT, 0, 0, 31),
+    "SDLOG_MODE": (INT, 0, None, None),
+}
+
+
+@pytest.mark.parametrize("name", sorted(PX4_FACTS))
+def test_px4_facts(name: str) -> None:
+    ptype, default, lo, hi = PX4_FACTS[name]
     ps = ParamStore()
-    expected = {
-        "MIS_TAKEOFF_ALT": (2.5, ParamType.REAL32),
-        "MPC_XY_CRUISE": (5.0, ParamType.REAL32),
-        "MPC_XY_VEL_MAX": (12.0, ParamType.REAL32),
-        "MPC_Z_VEL_MAX_UP": (3.0, ParamType.REAL32),
-        "MPC_Z_VEL_MAX_DN": (1.5, ParamType.REAL32),
-        "MPC_LAND_SPEED": (0.7, ParamType.REAL32),
-        "MPC_THR_HOVER": (0.5, ParamType.REAL32),
-        "MPC_TILTMAX_AIR": (45.0, ParamType.REAL32),
-        "RTL_RETURN_ALT": (60.0, ParamType.REAL32),
-        "COM_OF_LOSS_T": (1.0, ParamType.REAL32),
-        "COM_OBL_RC_ACT": (0, ParamType.INT32),
-        "NAV_DLL_ACT": (0, ParamType.INT32),
-        "COM_DL_LOSS_T": (10, ParamType.INT32),
-        "COM_DISARM_LAND": (2.0, ParamType.REAL32),
-        "GF_ACTION": (2, ParamType.INT32),
-        "SIM_MASS": (0.468, ParamType.REAL32),
-        "SIM_DRAG": (0.15, ParamType.REAL32),
-    }
-    for name, (value, ptype) in expected.items():
-        assert ps.get(name) == pytest.approx(value), name
-        assert ps.spec(name).type == ptype, name
-        assert ps.spec(name).description
+    spec = ps.spec(name)
+    assert spec.type == ptype
+    assert ps.stored(name) == pytest.approx(default) and ps.get(name) == pytest.approx(default)
+    if lo is not None:
+        assert spec.min == pytest.approx(lo)
+    if hi is not None:
+        assert spec.max == pytest.approx(hi)
+
+
+def test_the_set_is_a_multicopter_px4_sitl_set() -> None:
+    ps = ParamStore()
     names = ps.names()
-    assert len(names) == len(set(names)) == len(ps)
-    assert all(len(n) <= 16 for n in names)
-    assert names == ParamStore().names()  # stable order -> param_index
-    assert ps.index("MPC_XY_CRUISE") == names.index("MPC_XY_CRUISE")
+    assert 1100 <= len(names) <= 1300  # PX4 SITL (gz_x500) lists ~1000-1200
+    assert names == sorted(names)  # PX4's order (param_index) is by name
+    assert len(set(names)) == len(names)
+    assert all(re.fullmatch(r"[A-Z0-9_]{1,16}", n) for n in names)
+    # other vehicle types are out, every multicopter / commander / estimator family is in
+    for prefix in ("FW_", "VT_", "GND_", "RWTO_", "UUV_", "NPFG_", "ASPD_", "LPE_", "TEST_"):
+        assert not [n for n in names if n.startswith(prefix)], prefix
+    for prefix, at_least in (
+        ("MPC_", 40),
+        ("MC_", 30),
+        ("COM_", 50),
+        ("EKF2_", 100),
+        ("RC", 100),
+        ("NAV_", 10),
+    ):
+        assert sum(n.startswith(prefix) for n in names) >= at_least, prefix
+    ints = sum(ps.spec(n).type == ParamType.INT32 for n in names)
+    assert 300 < ints < len(names) - 300  # both types are well represented
+
+
+def _read_param_names(package: Path) -> set[str]:
+    """Every PX4-style name the autopilot package reads (string literals), from its source."""
+    names: set[str] = set()
+    for path in package.rglob("*.py"):
+        if path.name != "params.py":
+            names |= set(re.findall(r'"([A-Z][A-Z0-9]*_[A-Z0-9_]+)"', path.read_text(encoding="utf-8")))
+    return names
+
+
+def test_wired_means_read_by_the_autopilot() -> None:
+    import viva_sitl.autopilot as ap_pkg
+
+    ps = ParamStore()
+    read = {n for n in _read_param_names(Path(ap_pkg.__file__).parent) if n in ps}
+    wired = {n for n in ps.names() if ps.spec(n).wired}
+    assert read == wired, (sorted(read - wired), sorted(wired - read))
+    assert "MPC_XY_CRUISE" in wired and "COM_RC_IN_MODE" not in wired
 
 
 def test_unknown_names_raise_key_error() -> None:
@@ -52,23 +112,34 @@ def test_unknown_names_raise_key_error() -> None:
         ps.spec("mis_takeoff_alt")  # names are case-sensitive, as PX4
 
 
+def test_out_of_range_is_stored_as_px4_and_constrained_for_use() -> None:
+    ps = ParamStore()
+    ps.set("MPC_XY_CRUISE", 1000.0)  # PX4's param_set does not enforce the documented max (20)
+    assert ps.stored("MPC_XY_CRUISE") == 1000.0
+    assert ps.get("MPC_XY_CRUISE") == 20.0
+    ps.set("GF_ACTION", 9)
+    assert ps.stored("GF_ACTION") == 9 and ps.get_int("GF_ACTION") == 5
+    ps.set("COM_RC_IN_MODE", -3)  # a stored-only parameter keeps what was set
+    assert ps.stored("COM_RC_IN_MODE") == -3
+
+
 @pytest.mark.parametrize(
     ("name", "value"),
     [
         ("MIS_TAKEOFF_ALT", math.nan),
         ("MIS_TAKEOFF_ALT", math.inf),
-        ("MIS_TAKEOFF_ALT", -1.0),
-        ("MPC_XY_CRUISE", 1000.0),
+        ("MIS_TAKEOFF_ALT", 1e39),  # no float32 holds it
         ("NAV_DLL_ACT", 2.5),  # INT32 must be integral
-        ("GF_ACTION", 9),
+        ("SYS_AUTOSTART", 2.0**31),  # and fit an int32
+        ("COM_RC_IN_MODE", "fast"),
     ],
 )
-def test_bad_values_are_rejected_and_leave_the_value(name: str, value: float) -> None:
+def test_values_no_parameter_can_hold_are_rejected(name: str, value: float) -> None:
     ps = ParamStore()
-    before, rev = ps.get(name), ps.revision
+    before, rev = ps.stored(name), ps.revision
     with pytest.raises(ValueError):
         ps.set(name, value)
-    assert ps.get(name) == before
+    assert ps.stored(name) == before
     assert ps.revision == rev
     assert not ps.is_modified(name)
 
@@ -85,6 +156,36 @@ def test_set_int_and_float() -> None:
     assert ps.revision == rev
     ps.reset("MPC_XY_CRUISE")
     assert ps.get("MPC_XY_CRUISE") == 5.0 and not ps.is_modified("MPC_XY_CRUISE")
+    with pytest.raises(IndexError):
+        ps.name_at(len(ps))
+    assert ps.name_at(ps.index("MPC_XY_CRUISE")) == "MPC_XY_CRUISE"
+
+
+def _crc32_bitwise(data: bytes, crc: int) -> int:
+    """Reflected CRC-32 (polynomial 0xEDB88320) without pre/post inversion, bit by bit."""
+    for byte in data:
+        crc ^= byte
+        for _ in range(8):
+            crc = (crc >> 1) ^ 0xEDB88320 if crc & 1 else crc >> 1
+    return crc
+
+
+def test_hash_check_is_px4s_crc_over_names_and_values() -> None:
+    specs = [
+        ParamSpec("A_INT", ParamType.INT32, -7),
+        ParamSpec("B_FLOAT", ParamType.REAL32, 0.25),
+        ParamSpec("C_VOLATILE", ParamType.INT32, 3, volatile=True),
+    ]
+    ps = ParamStore(specs)
+    crc = _crc32_bitwise(b"A_INT", 0)
+    crc = _crc32_bitwise(struct.pack("<i", -7), crc)
+    crc = _crc32_bitwise(b"B_FLOAT", crc)
+    crc = _crc32_bitwise(struct.pack("<f", 0.25), crc)
+    assert ps.hash_check() == crc
+    ps.set("C_VOLATILE", 4)  # volatile parameters are not part of the hash
+    assert ps.hash_check() == crc
+    ps.set("B_FLOAT", 0.5)
+    assert ps.hash_check() != crc
 
 
 def test_sim_params_rebuild_eav_params() -> None:

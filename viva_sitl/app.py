@@ -1,6 +1,6 @@
 """Wiring: the only place that connects footage, dynamics, camera, autopilot, MAVLink and video.
 
-asyncio loop (one thread):  physics task (paced by the clock) -> Autopilot.update -> EAV step
+asyncio loop (one thread):  physics task (paced by the clock) -> Vehicle.step (Autopilot.update -> EAV step)
                             MavlinkEndpoint tasks (UDP I/O, telemetry, commands)
 render thread:              at the stream fps, snapshot the (frozen) state -> VAC render -> VideoPipeline.submit
 video worker threads:       encode + send (bounded queues; late frames dropped and counted)
@@ -18,17 +18,20 @@ import signal
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 import cv2
 
 from viva_sitl.autopilot import Autopilot, ParamStore
 from viva_sitl.clock import RealTimePacer, run_paced
-from viva_sitl.config import SimConfig
+from viva_sitl.config import ConfigError, SimConfig
+from viva_sitl.dashboard.config import DashboardConfig
 from viva_sitl.dynamics import EavState
 from viva_sitl.frame import RenderedFrame
-from viva_sitl.geo import GeoOrigin
+from viva_sitl.geo import GeoOrigin, home_from_env
 from viva_sitl.mavlink import CameraInfo, CaptureResult, MavlinkEndpoint, StreamEncoding, VideoStreamSpec
 from viva_sitl.sim import Simulator
+from viva_sitl.vehicle import Vehicle
 from viva_sitl.video import FrameScheduler, VideoPipeline
 
 log = logging.getLogger("viva_sitl.app")
@@ -37,13 +40,18 @@ log = logging.getLogger("viva_sitl.app")
 class SitlApp:
     """One simulated vehicle: satisfies viva_sitl.mavlink's VehicleLink protocol."""
 
-    def __init__(self, config: SimConfig, *, video: bool = True, run_dir: Path | None = None) -> None:
+    def __init__(
+        self,
+        config: SimConfig,
+        *,
+        video: bool = True,
+        run_dir: Path | None = None,
+        dashboard: DashboardConfig | None = None,
+    ) -> None:
         self.config = config
-        self.sim = Simulator(config)
-        self.params = ParamStore()
-        for name, value in config.params:
-            self.params.set(name, value)
-        self.autopilot = Autopilot(self.params, config.physics, inside=self.sim.inside_footage)
+        self.vehicle = Vehicle(config)
+        self.sim: Simulator = self.vehicle.sim
+        self.params: ParamStore = self.vehicle.params
         self.boot_wall_time_s = time.time()
         self.state_wall_time_s = self.boot_wall_time_s
         self.run_dir = run_dir or Path("runs") / time.strftime("%Y%m%d-%H%M%S")
@@ -51,10 +59,26 @@ class SitlApp:
         self.video: VideoPipeline | None = None
         self.scheduler: FrameScheduler | None = None
         self.last_frame: RenderedFrame | None = None
+        # --- dashboard (viva_sitl/dashboard): construction ---------------------------------------------
+        self.dashboard: Any = None  # viva_sitl.dashboard.server.Dashboard when enabled
+        self.dashboard_note = ""  # why there is none, for the ready line
+        dash_cfg = dashboard if dashboard is not None else DashboardConfig(enabled=False)
+        if dash_cfg.enabled:
+            try:
+                from viva_sitl.dashboard.server import Dashboard
+            except ImportError:
+                self.dashboard_note = "off (aiohttp missing: pip install 'viva-sitl[dashboard]')"
+                log.warning("dashboard %s", self.dashboard_note)
+            else:
+                self.dashboard = Dashboard(self, dash_cfg)
+        # --- end dashboard ----------------------------------------------------------------------------
         if video:
             self.run_dir.mkdir(parents=True, exist_ok=True)
             vcfg = dataclasses.replace(config.video, sdp_dir=str(self.run_dir))
-            self.video = VideoPipeline(vcfg, config.camera.width_px, config.camera.height_px)
+            extra = (self.dashboard.vac,) if self.dashboard is not None else ()
+            self.video = VideoPipeline(
+                vcfg, config.camera.width_px, config.camera.height_px, extra_outputs=extra
+            )
             self.scheduler = FrameScheduler(
                 self._render_tick, self.video.submit, config.video.fps, name="viva-render"
             )
@@ -63,6 +87,10 @@ class SitlApp:
         self._physics_task: asyncio.Task[None] | None = None
 
     # --- VehicleLink ----------------------------------------------------------------------
+    @property
+    def autopilot(self) -> Autopilot:
+        return self.vehicle.autopilot
+
     @property
     def state(self) -> EavState:
         return self.sim.state
@@ -125,15 +153,13 @@ class SitlApp:
 
     # --- loops ---------------------------------------------------------------------------
     def _step_once(self) -> None:
-        state = self.sim.state
-        self.sim.step(self.autopilot.update(state.time_s, state))
+        if self.dashboard is not None:  # its sticks reach the autopilot at every step (an RC receiver)
+            self.dashboard.before_step(self.vehicle.time_s)
+        self.vehicle.step(1)
 
     def _after_batch(self) -> None:
         self.state_wall_time_s = time.time()
-        new_params = self.autopilot.eav_params()  # cached on the parameter revision: cheap
-        if new_params != self.sim.params:
-            self.sim.set_params(new_params)
-            self.pacer.dt_s = new_params.dt_s
+        self.pacer.dt_s = self.vehicle.dt_s
 
     def stop(self) -> None:
         self._stopping.set()
@@ -142,6 +168,9 @@ class SitlApp:
         if self.scheduler is not None:
             # First render decodes/generates the footage frame and builds caches: do it before we are "ready".
             await asyncio.get_running_loop().run_in_executor(None, self._render_tick, -1)
+        # dashboard: start (first: a busy --dashboard-port fails before anything runs)
+        if self.dashboard is not None:
+            await self.dashboard.start()
         await self.endpoint.start()
         if self.video is not None and self.scheduler is not None:
             self.video.start()
@@ -161,6 +190,8 @@ class SitlApp:
             self._physics_task.cancel()
             with contextlib.suppress(asyncio.CancelledError):
                 await self._physics_task
+            if self.dashboard is not None:  # dashboard: stop
+                await self.dashboard.stop()
             await self.endpoint.stop()
             if self.scheduler is not None:
                 self.scheduler.stop()
@@ -183,6 +214,10 @@ class SitlApp:
                 parts.append(f"{kind} rtp sdp {sdp.resolve()}")
             if self.video.frame_socket_endpoint:
                 parts.append(f"frames {self.video.frame_socket_endpoint}")
+        if self.dashboard is not None:  # dashboard: ready-line part
+            parts.append(f"dashboard {self.dashboard.url}")
+        elif self.dashboard_note:
+            parts.append(f"dashboard {self.dashboard_note}")
         print(" | ".join(parts), flush=True)
 
     def _print_stats(self) -> None:
@@ -201,6 +236,8 @@ class SitlApp:
                 lost = render["late_skipped"] + video["dropped"]
                 stats["frames_lost_pct"] = round(100.0 * lost / due, 3) if due else 0.0
         stats["mavlink"] = self.endpoint.stats
+        if self.dashboard is not None:
+            stats["dashboard"] = self.dashboard.stats()
         print(f"viva-sitl stopped: {json.dumps(stats, default=str)}", file=sys.stderr, flush=True)
 
 
@@ -213,6 +250,19 @@ def config_from_args(args: argparse.Namespace) -> SimConfig:
         sim_updates["speed"] = args.speed
     if args.seed is not None:
         sim_updates["seed"] = args.seed
+    # placement, as PX4 SITL: --home, else [sim] home, else PX4_HOME_LAT/LON/ALT, else the footage's own place
+    home = getattr(args, "home", None)
+    if home is None and cfg.home is None:
+        try:
+            home = home_from_env()
+        except ValueError as exc:
+            raise ConfigError(str(exc)) from None
+    if home is not None:
+        sim_updates["home"] = home
+    for key, flag in (("footage_alt_m", "footage_alt"), ("footage_hfov_deg", "footage_hfov"),
+                      ("footage_gsd_m_per_px", "footage_gsd")):  # fmt: skip
+        if getattr(args, flag, None) is not None:
+            sim_updates[key] = getattr(args, flag)
     mav = cfg.mavlink
     if args.instance is not None:
         mav = dataclasses.replace(mav, instance=args.instance)
@@ -237,9 +287,24 @@ def config_from_args(args: argparse.Namespace) -> SimConfig:
     return dataclasses.replace(cfg, mavlink=mav, video=video, **sim_updates)  # type: ignore[arg-type]
 
 
+def dashboard_config_from_args(args: argparse.Namespace, instance: int) -> DashboardConfig:
+    """--dashboard-port / --no-dashboard (the dashboard listens where --listen says, loopback by default)."""
+    return DashboardConfig(
+        enabled=not getattr(args, "no_dashboard", False),
+        host=getattr(args, "listen", None) or "127.0.0.1",
+        port=getattr(args, "dashboard_port", None),
+        instance=instance,
+    )
+
+
 def run_from_args(args: argparse.Namespace) -> int:
     cfg = config_from_args(args)
-    app = SitlApp(cfg, video=not args.no_video, run_dir=Path(args.run_dir) if args.run_dir else None)
+    app = SitlApp(
+        cfg,
+        video=not args.no_video,
+        run_dir=Path(args.run_dir) if args.run_dir else None,
+        dashboard=dashboard_config_from_args(args, cfg.mavlink.instance),
+    )
 
     async def main() -> None:
         loop = asyncio.get_running_loop()
@@ -251,4 +316,4 @@ def run_from_args(args: argparse.Namespace) -> int:
     return 0
 
 
-__all__ = ["SitlApp", "config_from_args", "run_from_args"]
+__all__ = ["SitlApp", "config_from_args", "dashboard_config_from_args", "run_from_args"]

@@ -8,9 +8,11 @@ import logging
 import math
 import sys
 from pathlib import Path
+from typing import NoReturn
 
 from viva_sitl import __version__
 from viva_sitl.cliargs import positive_float
+from viva_sitl.geo import GeoOrigin, parse_home
 
 
 def _pose(text: str) -> tuple[float, float, float, float, float, float]:
@@ -27,6 +29,33 @@ def _pose(text: str) -> tuple[float, float, float, float, float, float]:
     return values  # type: ignore[return-value]
 
 
+def _home(text: str) -> GeoOrigin:
+    try:
+        return parse_home(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def _hfov(text: str) -> float:
+    v = positive_float(text)
+    if v >= 180.0:
+        raise argparse.ArgumentTypeError(f"a horizontal FoV must be below 180 degrees, got {text!r}")
+    return v
+
+
+def _footage_scale_flags(p: argparse.ArgumentParser) -> None:
+    """--footage-alt/--footage-hfov/--footage-gsd: the footage's recording scale, beating its metadata files."""
+    p.add_argument(
+        "--footage-alt", type=positive_float, metavar="M", help="recording altitude of the footage (m)"
+    )
+    p.add_argument(
+        "--footage-hfov", type=_hfov, metavar="DEG", help="recording horizontal FoV of the footage (deg)"
+    )
+    p.add_argument(
+        "--footage-gsd", type=positive_float, metavar="M_PER_PX", help="ground sample distance of the footage"
+    )
+
+
 def _port(text: str) -> int:
     try:
         v = int(text)
@@ -37,8 +66,15 @@ def _port(text: str) -> int:
     return v
 
 
+class _OneLineErrors(argparse.ArgumentParser):
+    """A bad flag is one line on stderr (the usage synopsis stays in --help), exit status 2 as argparse."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = _OneLineErrors(
         prog="viva-sitl",
         description="A PX4-compatible MAVLink SITL whose vehicle flies inside real nadir drone footage.",
     )
@@ -53,6 +89,12 @@ def build_parser() -> argparse.ArgumentParser:
         "--footage", help="catalog name (synthetic, interchange, songdo-00003, ...) or a video/image path"
     )
     run.add_argument("--config", help="TOML config file (see configs/default.toml)")
+    run.add_argument(
+        "--home", type=_home, metavar="LAT,LON[,ALT]",
+        help="place the footage centre (the NED origin) here, as PX4_HOME_LAT/LON/ALT (default: PX4_HOME_* if "
+        "set, else the footage's geo-reference, else PX4's 47.397742,8.545594,488)",
+    )  # fmt: skip
+    _footage_scale_flags(run)
     run.add_argument("--speed", type=positive_float, help="sim seconds per wall second (default 1)")
     run.add_argument("--seed", type=int, help="random seed (disturbances, sensor noise)")
     run.add_argument("--duration", type=positive_float, help="stop after this many wall seconds")
@@ -76,6 +118,12 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument(
         "--no-video", action="store_true", help="no rendering and no video outputs (MAVLink only)"
     )
+    run.add_argument(
+        "--dashboard-port",
+        type=_port,
+        help="web dashboard port (default 8080+instance; when busy a free port is used; 0 = any free port)",
+    )
+    run.add_argument("--no-dashboard", action="store_true", help="do not serve the web dashboard")
     run.add_argument("--run-dir", help="where the SDP file, captures and logs go (default ./runs/<time>)")
 
     render = sub.add_parser("render", help="render one VAC frame at a pose")
@@ -88,6 +136,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--time", type=float, default=0.0, help="simulation time in s (selects the footage frame)"
     )
     render.add_argument("-o", "--output", required=True, help="output image (png/jpg)")
+    _footage_scale_flags(render)
 
     footage = sub.add_parser("footage", help="footage catalog: list | info | get | ingest", add_help=False)
     footage.add_argument("rest", nargs=argparse.REMAINDER)
@@ -102,6 +151,9 @@ def _cmd_render(args: argparse.Namespace) -> int:
     from viva_sitl.sim import Simulator
 
     cfg = SimConfig.load(args.config)
+    scale = {"footage_alt_m": args.footage_alt, "footage_hfov_deg": args.footage_hfov,
+             "footage_gsd_m_per_px": args.footage_gsd}  # fmt: skip
+    cfg = dataclasses.replace(cfg, **{k: v for k, v in scale.items() if v is not None})
     north, east, alt, roll, pitch, yaw = args.pose
     with Simulator(cfg, footage=args.footage or cfg.footage) as sim:
         state = EavState.at_rest(
@@ -137,6 +189,13 @@ def main(argv: list[str] | None = None) -> int:
     from viva_sitl.footage import FootageError
 
     try:
+        from viva_sitl.dashboard.server import DashboardError
+    except ImportError:  # aiohttp not installed: the dashboard is off, its error cannot happen
+
+        class DashboardError(ValueError):  # type: ignore[no-redef]
+            pass
+
+    try:
         if args.command == "render":
             return _cmd_render(args)
         if args.command == "footage":
@@ -147,7 +206,7 @@ def main(argv: list[str] | None = None) -> int:
             from viva_sitl.app import run_from_args
 
             return run_from_args(args)
-    except (ConfigError, FootageError) as exc:
+    except (ConfigError, FootageError, DashboardError) as exc:
         print(f"viva-sitl: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:

@@ -1,12 +1,13 @@
 """Configuration: one TOML file, one table per part, each table built into that part's frozen dataclass.
 
-    [sim]      footage, seed, speed, initial pose, home        -> SimConfig's own fields
+    [sim]      footage, seed, speed, initial pose, home,       -> SimConfig's own fields
+               footage_alt_m, footage_hfov_deg, footage_gsd_m_per_px
     [physics]  EavParams fields (rate_hz accepted for dt_s)    -> viva_sitl.dynamics.EavParams
     [physics.wind]                                             -> viva_sitl.dynamics.WindParams
     [camera]   CameraParams fields                             -> viva_sitl.camera.CameraParams
     [mavlink]  MavlinkConfig fields                            -> viva_sitl.mavlink.MavlinkConfig
     [video]    VideoConfig fields                              -> viva_sitl.video.VideoConfig
-    [params]   PX4 parameter overrides (name = value)
+    [params]   PX4 parameter overrides (NAME = number), checked against the PX4 parameter set at load
 
 Unknown tables or keys are errors with the exact key named: a typo never silently falls back to a default.
 """
@@ -14,6 +15,7 @@ Unknown tables or keys are errors with the exact key named: a typo never silentl
 from __future__ import annotations
 
 import dataclasses
+import difflib
 import enum
 import math
 import tomllib
@@ -23,9 +25,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, TypeVar
 
+from viva_sitl.autopilot.params import ParamStore
 from viva_sitl.camera import CameraParams
 from viva_sitl.dynamics import EavParams
-from viva_sitl.geo import GeoOrigin
+from viva_sitl.geo import GeoOrigin, parse_home
 from viva_sitl.mavlink import MavlinkConfig
 from viva_sitl.video import VideoConfig
 
@@ -120,7 +123,13 @@ class SimConfig:
     speed: float = 1.0  # sim seconds per wall second for `run`
     initial_pos_ned_m: tuple[float, float, float] = (0.0, 0.0, 0.0)  # start on the ground at the origin
     initial_yaw_deg: float = 0.0
-    home: GeoOrigin | None = None  # used only when the footage has no geo-reference
+    # where the NED origin (footage centre) is on Earth: places ANY footage there (None: the footage's own
+    # geo-reference, else PX4's default home). TOML: "LAT,LON[,ALT]", [lat, lon(, alt)] or a table.
+    home: GeoOrigin | None = None
+    # the footage's recording scale, beating its metadata (None: metadata, DJI SRT/XMP/EXIF, else defaults)
+    footage_alt_m: float | None = None
+    footage_hfov_deg: float | None = None
+    footage_gsd_m_per_px: float | None = None
     physics: EavParams = field(default_factory=EavParams)
     camera: CameraParams = field(default_factory=CameraParams)
     mavlink: MavlinkConfig = field(default_factory=MavlinkConfig)
@@ -130,6 +139,12 @@ class SimConfig:
     def __post_init__(self) -> None:
         if not (self.speed > 0.0 and math.isfinite(self.speed)):
             raise ConfigError(f"sim.speed must be a positive number, got {self.speed!r}")
+        for key in ("footage_alt_m", "footage_hfov_deg", "footage_gsd_m_per_px"):
+            v = getattr(self, key)
+            if v is not None and not (v > 0.0 and math.isfinite(v)):
+                raise ConfigError(f"sim.{key} must be a positive number, got {v!r}")
+        if self.footage_hfov_deg is not None and self.footage_hfov_deg >= 180.0:
+            raise ConfigError(f"sim.footage_hfov_deg must be < 180, got {self.footage_hfov_deg!r}")
 
     @classmethod
     def load(cls, path: str | Path | None = None) -> SimConfig:
@@ -159,6 +174,14 @@ class SimConfig:
         misplaced = sections & set(sim)
         if misplaced:
             raise ConfigError(f"{where}[sim]: {sorted(misplaced)} must be tables of their own")
+        home = sim.get("home")
+        if isinstance(home, str | list):
+            try:
+                sim["home"] = dataclasses.asdict(
+                    parse_home(home if isinstance(home, str) else ",".join(str(v) for v in home))
+                )
+            except ValueError as exc:
+                raise ConfigError(f"{where}[sim].home: {exc}") from None
         merged: dict[str, Any] = {**sim, **{k: data[k] for k in sections - {"params"} if k in data}}
         physics = dict(merged.get("physics", {}))
         if "rate_hz" in physics:
@@ -167,8 +190,26 @@ class SimConfig:
                 raise ConfigError(f"{where}[physics].rate_hz: expected a positive number, got {rate!r}")
             physics["dt_s"] = 1.0 / float(rate)
             merged["physics"] = physics
-        params = data.get("params", {})
-        if not isinstance(params, dict):
-            raise ConfigError(f"{where}[params]: expected a table of NAME = number")
-        merged["params"] = [[str(k), v] for k, v in params.items()]
+        merged["params"] = [list(item) for item in _check_params(data.get("params", {}), where)]
         return build(cls, merged, where)
+
+
+def _check_params(params: Any, where: str) -> list[tuple[str, float]]:
+    """`[params]` NAME = number: every name a parameter the vehicle has, every value one it can hold."""
+    if not isinstance(params, dict):
+        raise ConfigError(f"{where}[params]: expected a table of NAME = number")
+    store = ParamStore()
+    out: list[tuple[str, float]] = []
+    for name, value in params.items():
+        key = f"{where}[params].{name}"
+        if name not in store:
+            close = difflib.get_close_matches(str(name).upper(), store.names(), n=3)
+            hint = f" (did you mean {', '.join(close)}?)" if close else ""
+            raise ConfigError(f"{key}: unknown PX4 parameter{hint}")
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            raise ConfigError(f"{key}: expected a number, got {value!r}")
+        try:
+            out.append((str(name), store.spec(name).check(value)))
+        except ValueError as exc:
+            raise ConfigError(f"{key}: {exc}") from None
+    return out

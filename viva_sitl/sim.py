@@ -33,11 +33,13 @@ from viva_sitl.camera import (
     camera_intrinsics,
     footage_to_image_homography,
 )
+from viva_sitl.camera.projection import cam_rot_ned, camera_center_ned
 from viva_sitl.camera.pyramid import RegionPyramid, level_from_source
 from viva_sitl.config import SimConfig
 from viva_sitl.dynamics import EavCommand, EavParams, EavState, step
 from viva_sitl.footage import FootageSource, open_footage
 from viva_sitl.footage.source import VideoSource
+from viva_sitl.footage.synthetic import SyntheticField
 from viva_sitl.frame import FrameMeta, RenderedFrame
 from viva_sitl.geo import GeoOrigin
 
@@ -73,7 +75,10 @@ class Simulator:
         self.config = config or SimConfig()
         if isinstance(footage, str | Path) or footage is None:
             self.footage: FootageSource = open_footage(
-                footage if footage is not None else self.config.footage
+                footage if footage is not None else self.config.footage,
+                altitude_m=self.config.footage_alt_m,
+                hfov_deg=self.config.footage_hfov_deg,
+                gsd_m_per_px=self.config.footage_gsd_m_per_px,
             )
         else:
             self.footage = footage
@@ -82,6 +87,7 @@ class Simulator:
         self.params: EavParams = self.config.physics
         self._pyramid_index = -1
         self._pyramid: LazyPyramid | None = None
+        self._pyramid_source: object = None  # the ground-view image `_pyramid` was built from
         self._frame_counter = 0
         # constant per camera: FrameMeta fields computed once per CameraParams (see _camera_fields)
         self._fields_camera: CameraParams | None = None
@@ -105,8 +111,9 @@ class Simulator:
     # --- geometry ------------------------------------------------------------------
     @property
     def geo(self) -> GeoOrigin:
-        """NED origin on the ground (footage centre): the footage's geo-reference, else the configured home."""
-        return self.footage.geometry.geo_origin or self.config.home or GeoOrigin()
+        """NED origin on the ground (footage centre): the configured home (places any footage), else the footage's
+        geo-reference, else PX4 SITL's default home."""
+        return self.config.home or self.footage.geometry.geo_origin or GeoOrigin()
 
     def inside_footage(self, north_m: float, east_m: float) -> bool:
         """True while the ground point under the vehicle is inside the footage (the geofence)."""
@@ -164,6 +171,7 @@ class Simulator:
         if index != self._pyramid_index or self._pyramid is None:
             self._pyramid = LazyPyramid(self.footage.frame(index))
             self._pyramid_index = index
+            self._pyramid_source = None
         return index, self._pyramid
 
     def _plan_region(self, s: EavState, region: RegionPyramid) -> tuple[int, int, int, int, int] | None:
@@ -256,7 +264,33 @@ class Simulator:
             self.footage.prefetch, index + 1, self._source_level_used
         )
 
+    def _render_ground_view(self, s: EavState) -> tuple[int, RenderResult]:
+        """An edgeless procedural ground (the synthetic field): render from a window drawn around the footprint."""
+        assert isinstance(self.footage, SyntheticField)
+        index = self.footage.frame_index_at(s.time_s)
+        cam = self.camera
+        k = camera_intrinsics(cam)
+        us = np.linspace(-0.5, cam.width_px - 0.5, 9)
+        vs = np.linspace(-0.5, cam.height_px - 0.5, 7)
+        border = [(u, vs[0]) for u in us] + [(u, vs[-1]) for u in us] + [(us[0], v) for v in vs]
+        border += [(us[-1], v) for v in vs] + [((cam.width_px - 1) / 2.0, (cam.height_px - 1) / 2.0)]
+        px = np.column_stack([np.asarray(border), np.ones(len(border))])
+        rays = px @ np.linalg.inv(k).T @ cam_rot_ned(cam, s.att_rpy_rad).T
+        centre = camera_center_ned(cam, s.pos_ned_m, s.att_rpy_rad)
+        ground_px_m = max(-float(centre[2]), 0.01) / max(float(k[0, 0]), float(k[1, 1]))
+        image, geometry = self.footage.ground_view(index, centre, rays, ground_px_m)
+        if self._pyramid is None or self._pyramid_source is not image:
+            self._pyramid, self._pyramid_source, self._pyramid_index = LazyPyramid(image), image, -1
+        # the window's geometry: the renderer keeps no other per-frame state
+        self.renderer.geometry = geometry
+        self.full_renders += 1
+        return index, self.renderer.render(
+            self._pyramid, s.pos_ned_m, s.att_rpy_rad, s.vel_ned_m_s, self.camera_rng
+        )
+
     def _render_image(self, s: EavState) -> tuple[int, RenderResult]:
+        if self.footage.geometry.unbounded and isinstance(self.footage, SyntheticField):
+            return self._render_ground_view(s)
         index = self.footage.frame_index_at(s.time_s)
         planned = self._region_pyramid(index, s)
         if planned is not None:

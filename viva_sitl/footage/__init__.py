@@ -7,9 +7,11 @@
     src.annotations(idx)                       # [Annotation]: boxes mapped to metres (ground truth for synthetic)
 
 Sources: `VideoSource` (PyAV decode: sequential fast path, keyframe seek for jumps), `StillSource` (one image) and
-`SyntheticField` (the built-in SYNTHETIC CALIBRATION FIELD: metric grid + markers with analytic trajectories).
-Metadata lives in configs/footage/<name>.toml (see `metadata.py`); DJI .SRT sidecars give the altitude.
-`viva-sitl footage list|info|get|ingest` is `footage_main` (catalog, Zenodo download with resume and checksums,
+`SyntheticField` (the built-in SYNTHETIC CALIBRATION FIELD: metric grid + markers with analytic trajectories, no
+edge: drawn around the camera wherever it flies; more moving `GroundObject`s via `add_object`; walking people, a
+crowd and cars with known paths from `synthetic_actors.py`).
+Metadata lives in viva_sitl/data/footage/<name>.toml (package data) (see `metadata.py`); DJI .SRT sidecars give the altitude.
+`viva-sitl footage list|info|get|ingest|show|annotate` is `footage_main` (catalog, Zenodo download with resume and checksums,
 ingest into a fast-decoding cache). Errors users can cause raise `FootageError` (a ValueError) with one message.
 Threading: use a source from one thread (the renderer's worker); `frame()` is locked, so other callers are
 serialised, never corrupt.
@@ -23,7 +25,7 @@ from viva_sitl.footage.loader import open_footage, resolve_metadata
 from viva_sitl.footage.metadata import AnnotationFormat, CatalogSpec, FootageKind, FootageMetadata
 from viva_sitl.footage.source import FootageSource, StillSource, VideoSource
 from viva_sitl.footage.srt import SrtSample, SrtTrack, parse_srt, parse_srt_text
-from viva_sitl.footage.synthetic import MarkerSpec, SyntheticField, SyntheticFieldParams
+from viva_sitl.footage.synthetic import GroundObject, MarkerSpec, SyntheticField, SyntheticFieldParams
 
 __all__ = [
     "Annotation",
@@ -34,6 +36,7 @@ __all__ = [
     "FootageKind",
     "FootageMetadata",
     "FootageSource",
+    "GroundObject",
     "MarkerSpec",
     "SrtSample",
     "SrtTrack",

@@ -1,8 +1,10 @@
 """Where footage pixels lie on the ground: the footage frame as an orthophoto of the plane z_ned = 0.
 
-The NED origin is the ground point under the footage centre (the recording drone's position). Footage pixel
-(u right, v down) maps to ground metres through the ground sample distance; footage "up" points along
-`heading_deg` (bearing, clockwise from north; 0 = north up).
+The NED origin is the ground point under the footage centre (the recording drone's position), unless `center_ne_m`
+says where the centre lies (a window cut from a larger ground, e.g. the synthetic field drawn around the camera).
+Footage pixel (u right, v down) maps to ground metres through the ground sample distance; footage "up" points along
+`heading_deg` (bearing, clockwise from north; 0 = north up). `unbounded` marks a ground that exists everywhere
+(the procedural synthetic field): `contains_ned` is then True for every point.
 """
 
 from __future__ import annotations
@@ -24,6 +26,8 @@ class FootageGeometry:
     recording_altitude_m: float  # m above ground of the recording camera
     heading_deg: float = 0.0  # bearing of footage "up", clockwise from north
     geo_origin: GeoOrigin | None = None  # WGS84 of the footage centre, if geo-referenced
+    center_ne_m: tuple[float, float] = (0.0, 0.0)  # ground (north, east) under the centre pixel
+    unbounded: bool = False  # ground everywhere (procedural): contains_ned is always True
 
     def __post_init__(self) -> None:
         if self.width_px <= 0 or self.height_px <= 0:
@@ -66,11 +70,12 @@ class FootageGeometry:
         c, s = math.cos(h), math.sin(h)
         g = self.gsd_m_per_px
         cx, cy = (self.width_px - 1) / 2.0, (self.height_px - 1) / 2.0
-        # image-aligned coordinates: fwd (up) = c*n + s*e, right = -s*n + c*e
+        n0, e0 = self.center_ne_m
+        # image-aligned coordinates: fwd (up) = c*n + s*e, right = -s*n + c*e (n, e relative to the centre)
         return np.array(
             [
-                [-s / g, c / g, cx],
-                [-c / g, -s / g, cy],
+                [-s / g, c / g, cx - (-s * n0 + c * e0) / g],
+                [-c / g, -s / g, cy - (-c * n0 - s * e0) / g],
                 [0.0, 0.0, 1.0],
             ]
         )
@@ -88,6 +93,9 @@ class FootageGeometry:
         return float(n / w), float(e / w)
 
     def contains_ned(self, north_m: float, east_m: float, margin_m: float = 0.0) -> bool:
+        """True when the ground point lies on the footage (always, for an unbounded ground)."""
+        if self.unbounded:
+            return True
         u, v = self.ned_to_px(north_m, east_m)
         m = margin_m / self.gsd_m_per_px
         return bool(m <= u <= self.width_px - 1 - m and m <= v <= self.height_px - 1 - m)

@@ -29,7 +29,7 @@ from viva_sitl.footage.loader import (
     INGEST_SUBDIR,
     geometry_for,
     resolve_metadata,
-    with_srt_sidecar,
+    with_scale_sources,
 )
 from viva_sitl.footage.metadata import FootageKind, FootageMetadata
 from viva_sitl.footage.paths import default_cache_dir
@@ -97,7 +97,7 @@ def ingest(
             total = int(ist.frames or 0) or None
             if max_frames is not None:
                 total = min(total or max_frames, max_frames)
-            geometry = geometry_for(with_srt_sidecar(meta), w, h)
+            geometry = geometry_for(with_scale_sources(meta), w, h)
             outs = []
             for k in range(levels):
                 ow, oh = (w, h) if k == 0 else (_even(w / 2**k), _even(h / 2**k))

@@ -1,11 +1,11 @@
 """`open_footage`: a catalog name, a path or nothing (the synthetic field) -> an open FootageSource.
 
 Resolution of `spec`:
-  None or "synthetic"            the built-in synthetic calibration field (configs/footage/synthetic.toml may tune it)
+  None or "synthetic"            the built-in synthetic calibration field (data/footage/synthetic.toml may tune it)
   an existing path               a video/image (metadata from `clip.toml`/`clip.mp4.toml` beside it, a catalog entry
                                  with that path, a DJI `clip.SRT` sidecar and the keyword overrides), a metadata .toml,
                                  or an ingest-cache folder (its footage.toml)
-  a NAME                         configs/footage/*.toml, then the ingest cache (<cache>/ingest/*/footage.toml), then
+  a NAME                         the catalog (viva_sitl/data/footage/*.toml), then the ingest cache (<cache>/ingest/*/footage.toml), then
                                  downloaded catalog files "CATALOG/FILE" (e.g. viva-safeland/clip01)
 Explicit keyword overrides (altitude_m, hfov_deg, gsd_m_per_px, heading_deg, fps) beat every file.
 """
@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from viva_sitl.footage.errors import FootageError
+from viva_sitl.footage.exif import read_photo_scale
 from viva_sitl.footage.geometry import FootageGeometry, corners_fit
 from viva_sitl.footage.metadata import (
     IMAGE_EXTENSIONS,
@@ -38,6 +39,11 @@ from viva_sitl.footage.synthetic import SyntheticField, SyntheticFieldParams, sy
 from viva_sitl.geo import GeoOrigin
 
 log = logging.getLogger(__name__)
+
+# The last resort for footage nobody describes: the paper's DJI Mini 4 Pro FoV taken as horizontal, and a stated
+# altitude (a typical survey hover height).
+DEFAULT_HFOV_DEG = 82.1
+DEFAULT_ALTITUDE_M = 100.0
 
 INGEST_SUBDIR = "ingest"
 DOWNLOAD_SUBDIR = "downloads"
@@ -97,14 +103,77 @@ def with_srt_sidecar(meta: FootageMetadata) -> FootageMetadata:
     updates: dict[str, Any] = {"srt": str(srt)}
     if meta.recording_altitude_m is None:
         if track.rel_alt_m is None or track.rel_alt_m <= 0:
-            raise FootageError(
-                f"{srt}: no positive rel_alt: altitude in the SRT sidecar; give the altitude explicitly"
-            )
-        updates["recording_altitude_m"] = track.rel_alt_m
+            log.info("%s: no positive rel_alt: altitude in the SRT sidecar", srt)
+        else:
+            updates["recording_altitude_m"] = track.rel_alt_m
     pos = track.lat_lon_deg
     if meta.home_lat_deg is None and meta.corners_lonlat is None and pos is not None:
         updates["home_lat_deg"], updates["home_lon_deg"] = pos
     return meta.with_overrides(**updates)
+
+
+def _scale_missing(meta: FootageMetadata) -> bool:
+    has_gsd = meta.gsd_m_per_px is not None or meta.corners_lonlat is not None
+    if has_gsd:
+        return meta.recording_altitude_m is None and meta.hfov_deg is None
+    return meta.recording_altitude_m is None or meta.hfov_deg is None
+
+
+def with_photo_metadata(meta: FootageMetadata) -> FootageMetadata:
+    """Fill what a still's own DJI XMP / EXIF say (altitude, FoV, GPS position, gimbal heading) where the metadata
+    file and the SRT are silent."""
+    if meta.kind is not FootageKind.STILL or not meta.path:
+        return meta
+    need_place = meta.home_lat_deg is None and meta.corners_lonlat is None
+    if not (_scale_missing(meta) or need_place or meta.heading_deg is None):
+        return meta
+    photo = read_photo_scale(Path(meta.path))
+    updates: dict[str, Any] = {}
+    rel_alt = photo.relative_altitude_m
+    if meta.recording_altitude_m is None and rel_alt is not None and rel_alt > 0:
+        updates["recording_altitude_m"] = rel_alt
+    if meta.hfov_deg is None and photo.hfov_deg is not None:
+        updates["hfov_deg"] = photo.hfov_deg
+    if need_place and photo.lat_deg is not None and photo.lon_deg is not None:
+        updates["home_lat_deg"], updates["home_lon_deg"] = photo.lat_deg, photo.lon_deg
+    if meta.heading_deg is None and meta.corners_lonlat is None and photo.heading_deg is not None:
+        updates["heading_deg"] = photo.heading_deg
+    if photo.gimbal_pitch_deg is not None and abs(photo.gimbal_pitch_deg + 90.0) > 10.0:
+        log.warning(
+            "footage %s: the gimbal pitch was %.0f deg, not nadir (-90): the ground scale will be off",
+            meta.name, photo.gimbal_pitch_deg,
+        )  # fmt: skip
+    if updates and photo.source:
+        log.info("footage %s: from the photo's metadata: %s", meta.name, photo.source)
+    return meta.with_overrides(**updates)
+
+
+def with_default_scale(meta: FootageMetadata) -> FootageMetadata:
+    """The paper's defaults for what no source gave (82.1 deg horizontal FoV, DEFAULT_ALTITUDE_M), with ONE
+    warning line saying what was assumed and how to set it."""
+    if meta.kind is FootageKind.SYNTHETIC or not _scale_missing(meta):
+        return meta
+    has_gsd = meta.gsd_m_per_px is not None or meta.corners_lonlat is not None
+    updates: dict[str, Any] = {}
+    if meta.hfov_deg is None:
+        updates["hfov_deg"] = DEFAULT_HFOV_DEG
+    if meta.recording_altitude_m is None and not has_gsd:
+        updates["recording_altitude_m"] = DEFAULT_ALTITUDE_M
+    assumed = ", ".join(
+        f"{'altitude' if k == 'recording_altitude_m' else 'horizontal FoV'} {v:g} {'m' if k == 'recording_altitude_m' else 'deg'}"
+        for k, v in updates.items()
+    )
+    log.warning(
+        "footage %s: no recording scale in a metadata file, DJI .SRT or photo XMP/EXIF; assuming the paper's "
+        "defaults (%s); set --footage-alt and --footage-hfov or --footage-gsd to fix the scale",
+        meta.name, assumed,
+    )  # fmt: skip
+    return meta.with_overrides(**updates)
+
+
+def with_scale_sources(meta: FootageMetadata) -> FootageMetadata:
+    """Metadata file (given) -> DJI .SRT sidecar -> photo XMP/EXIF -> the paper's defaults (one warning)."""
+    return with_default_scale(with_photo_metadata(with_srt_sidecar(meta)))
 
 
 def _build(meta: FootageMetadata) -> FootageSource:
@@ -120,7 +189,7 @@ def _build(meta: FootageMetadata) -> FootageSource:
         raise FootageError(f"footage {meta.name!r}: file not found: {path}")
     if not path.is_file():
         raise FootageError(f"footage {meta.name!r}: not a file: {path}")
-    meta = with_srt_sidecar(meta)
+    meta = with_scale_sources(meta)
     if meta.kind is FootageKind.STILL:
         image = StillSource.read(path)
         h, w = image.shape[:2]

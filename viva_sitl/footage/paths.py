@@ -6,19 +6,25 @@ Every function takes the caller's explicit choice first; the defaults are only w
 from __future__ import annotations
 
 import os
+from importlib import resources
 from pathlib import Path
 
 _REPO_ROOT = Path(__file__).resolve().parents[2]
+SHARED_DIR_ENV = "VIVA_SITL_SHARED_DIR"
 
 
 def default_config_dir() -> Path:
-    """configs/footage of the source checkout, else ./configs/footage (an installed package runs from a checkout)."""
-    repo = _REPO_ROOT / "configs" / "footage"
-    return repo if repo.is_dir() else Path.cwd() / "configs" / "footage"
+    """The footage catalog shipped inside the package (viva_sitl/data/footage): the same in a source checkout and a
+    wheel install."""
+    return Path(str(resources.files("viva_sitl").joinpath("data", "footage")))
 
 
 def default_shared_dir() -> Path:
-    """The `shared` folder beside the repository (../shared), where the sample footage lives."""
+    """$VIVA_SITL_SHARED_DIR, else the `shared` folder beside the repository (../shared), else ../shared of the
+    working directory: where the sample footage lives."""
+    env = os.environ.get(SHARED_DIR_ENV)
+    if env:
+        return Path(env).expanduser()
     beside = _REPO_ROOT.parent / "shared"
     return beside if beside.is_dir() else Path.cwd().parent / "shared"
 

@@ -108,6 +108,10 @@ class FootageSource(abc.ABC):
             "heading_deg": round(g.heading_deg, 2),
             "ground_size_m": f"{g.ground_width_m:.1f} x {g.ground_height_m:.1f}",
         }
+        if g.unbounded:
+            out["ground_size_m"] = (
+                f"unbounded (procedural; nominal frame {g.ground_width_m:.1f} x {g.ground_height_m:.1f})"
+            )
         if g.geo_origin is not None:
             out["geo_origin"] = f"{g.geo_origin.lat_deg:.7f}, {g.geo_origin.lon_deg:.7f}"
         for key in ("licence", "attribution", "annotations_path", "notes"):

@@ -38,6 +38,7 @@ from viva_sitl.mavlink.base import (
 from viva_sitl.mavlink.camera import CameraComponent, is_camera_command
 from viva_sitl.mavlink.codec import DatagramParser, Encoder
 from viva_sitl.mavlink.commands import CommandHandler, CommandRequest
+from viva_sitl.mavlink.ftp import FtpServer
 from viva_sitl.mavlink.mission import MissionLimits, MissionProtocol
 from viva_sitl.mavlink.offboard import (
     Rejected,
@@ -232,15 +233,14 @@ class MavlinkEndpoint:
         self._statustext_id = 0
         self._last_setpoint_warn = -math.inf
         self._loop: asyncio.AbstractEventLoop | None = None
-        ap = vehicle.autopilot
         self.telemetry = TelemetryBuilder(vehicle, self.sysid)
-        prearm = getattr(ap, "prearm_check", None)
-        if callable(prearm):
-            self.telemetry.prearm_ok = lambda: bool(prearm(self.vehicle.time_s).ok)
+        # looked up per call: Vehicle.reset replaces the autopilot
+        self.telemetry.prearm_ok = lambda: bool(self.vehicle.autopilot.prearm_check(self.vehicle.time_s).ok)
         self.commands = CommandHandler(
             vehicle, self, self._statustext, self._request_message, self._set_interval, self._get_interval
         )
-        self.params = ParamProtocol(ap.params, self, self._statustext)
+        self.params = ParamProtocol(vehicle.autopilot.params, self, self._statustext)
+        self.ftp = FtpServer(self)
         limits = MissionLimits(
             self.config.mission_max_items, self.config.mission_retry_s, self.config.mission_max_retries
         )
@@ -265,6 +265,7 @@ class MavlinkEndpoint:
                 lambda _lk, o, m: self.params.handle_request_read(o, m)
             ),
             M.MAVLINK_MSG_ID_PARAM_SET: self._targeted(lambda _lk, o, m: self.params.handle_set(o, m)),
+            M.MAVLINK_MSG_ID_FILE_TRANSFER_PROTOCOL: self._targeted(lambda _lk, o, m: self.ftp.handle(o, m)),
             M.MAVLINK_MSG_ID_MISSION_COUNT: self._targeted(
                 lambda _lk, o, m: self.mission.handle_count(o, m, self._mono())
             ),
@@ -352,6 +353,7 @@ class MavlinkEndpoint:
             loop.create_task(self._heartbeat_loop(), name="mavlink-heartbeat"),
             loop.create_task(self._telemetry_loop(), name="mavlink-telemetry"),
             loop.create_task(self._housekeeping_loop(), name="mavlink-housekeeping"),
+            loop.create_task(self.params.run(), name="mavlink-params"),
         ]
         log.info(
             "MAVLink sysid %d: api %s -> %s, gcs %s -> %s",
@@ -386,6 +388,8 @@ class MavlinkEndpoint:
         out: dict[str, Any] = asdict(self._stats)
         out["param_sets_accepted"] = self.params.sets_accepted
         out["param_sets_rejected"] = self.params.sets_rejected
+        out["param_list_values_sent"] = self.params.list_values_sent
+        out["ftp_requests"] = self.ftp.requests
         out["mission_uploads_completed"] = self.mission.uploads_completed
         out["mission_uploads_failed"] = self.mission.uploads_failed
         out["command_acks"] = self.commands.acks_sent

@@ -1,18 +1,29 @@
-"""Parameter protocol (PARAM_REQUEST_LIST / PARAM_REQUEST_READ / PARAM_SET -> PARAM_VALUE) with PX4's encoding.
+"""Parameter protocol (PARAM_REQUEST_LIST / PARAM_REQUEST_READ / PARAM_SET -> PARAM_VALUE) as PX4's mavlink module.
 
 PX4 encodes parameters bytewise: an INT32 parameter travels as its 4 raw bytes inside PARAM_VALUE.param_value
-(a float field), a REAL32 one as the float itself. PX4's answers to bad requests, reproduced here:
-- unknown name (read or set): no PARAM_VALUE, a STATUSTEXT "[pm] unknown param: NAME" (clients time out and retry);
-- PARAM_SET with a type that differs from the parameter's: no change, STATUSTEXT "[pm] param types mismatch";
-- a value our ParamStore refuses (out of range, NaN): no change, STATUSTEXT with the reason, and a PARAM_VALUE with
-  the unchanged value so the client sees at once that the set did not take.
+(a float field), a REAL32 one as the float itself. What PX4 does, reproduced here:
+- PARAM_REQUEST_LIST: first a `_HASH_CHECK` PARAM_VALUE (index -1 = 65535, type UINT32, the CRC of all values:
+  QGroundControl's cache key), then every parameter in index order, streamed at a bounded rate (PX4 sends up to 20
+  per mavlink-loop iteration on UDP) by an owned task, so a 1000+ parameter list never blocks the loop. A second
+  request while a list is streaming to the same peer restarts it at index 0 without the hash (as PX4).
+  PARAM_SET `_HASH_CHECK` (QGC: "my cache is current") stops the stream to that peer.
+- PARAM_REQUEST_READ by index (>= 0) or by name (index -1); `_HASH_CHECK` by name answers the hash.
+- unknown name (read or set) or index: no PARAM_VALUE, a STATUSTEXT "[pm] unknown param: NAME" (clients time out
+  and retry; PX4 logs PX4_ERR);
+- PARAM_SET with a type that differs from the parameter's: no change, no PARAM_VALUE, STATUSTEXT
+  "[pm] param types mismatch: NAME";
+- PARAM_SET of an out-of-range value: stored and echoed as PX4 does (PX4 does not enforce min/max; QGC warns);
+- a value no parameter can hold (NaN/inf float; our rule, PX4 would store it): no change, STATUSTEXT with the reason,
+  and a PARAM_VALUE with the unchanged value so the client sees at once that the set did not take.
 """
 
 from __future__ import annotations
 
+import asyncio
 import logging
 import math
 import struct
+from dataclasses import dataclass
 
 from pymavlink.dialects.v20 import common as mavlink2
 
@@ -23,6 +34,10 @@ from viva_sitl.mavlink.base import MavMessage, Origin, Outbox, StatusSink
 log = logging.getLogger(__name__)
 
 PARAM_ID_CHARS = 16
+HASH_PARAM = "_HASH_CHECK"
+LIST_BURST = 20  # PARAM_VALUEs per burst (PX4: up to 20 per mavlink loop iteration on UDP)
+LIST_BURST_PERIOD_S = 0.01  # one burst per this: 2000 parameters/s, a 1167-parameter list in ~0.6 s
+MAX_LIST_STREAMS = 16  # peers listing at once; a new one replaces the oldest
 
 
 def encode_param_value(value: float, ptype: ParamType) -> float:
@@ -39,6 +54,12 @@ def decode_param_value(wire: float, ptype: ParamType) -> float:
     return float(wire)
 
 
+@dataclass
+class _ListStream:
+    origin: Origin
+    next_index: int  # -1: the hash comes next
+
+
 class ParamProtocol:
     def __init__(self, store: ParamStore, out: Outbox, statustext: StatusSink) -> None:
         self.store = store
@@ -46,39 +67,92 @@ class ParamProtocol:
         self.statustext = statustext
         self.sets_accepted = 0
         self.sets_rejected = 0
+        self.list_values_sent = 0
+        self._streams: dict[tuple[object, tuple[str, int]], _ListStream] = {}
+        self._wake = asyncio.Event()
 
-    def _value_msg(self, name: str, index: int, count: int) -> MavMessage:
+    # --- messages -------------------------------------------------------------------------------
+    def _value_msg(self, name: str) -> MavMessage:
         spec = self.store.spec(name)
-        wire = encode_param_value(self.store.get(name), spec.type)
+        wire = encode_param_value(self.store.stored(name), spec.type)
         return mavlink2.MAVLink_param_value_message(
-            name.encode("ascii")[:PARAM_ID_CHARS], wire, int(spec.type), count, index
+            name.encode("ascii")[:PARAM_ID_CHARS],
+            wire,
+            int(spec.type),
+            len(self.store),
+            self.store.index(name),
         )
 
-    def handle_request_list(self, origin: Origin, msg: MavMessage) -> None:
-        names = self.store.names()
-        for i, name in enumerate(names):
-            self.out.reply(origin, self._value_msg(name, i, len(names)))
+    def _hash_msg(self) -> MavMessage:
+        wire = struct.unpack("<f", struct.pack("<I", self.store.hash_check()))[0]
+        return mavlink2.MAVLink_param_value_message(
+            HASH_PARAM.encode("ascii"), wire, mavlink2.MAV_PARAM_TYPE_UINT32, len(self.store), 0xFFFF
+        )
 
+    # --- PARAM_REQUEST_LIST: paced by run() -------------------------------------------------------
+    def handle_request_list(self, origin: Origin, msg: MavMessage) -> None:
+        key = (origin.link, origin.addr)
+        running = key in self._streams
+        self._streams.pop(key, None)
+        self._streams[key] = _ListStream(origin, 0 if running else -1)
+        while len(self._streams) > MAX_LIST_STREAMS:
+            del self._streams[next(iter(self._streams))]
+        self._wake.set()
+
+    def send_burst(self, n: int = LIST_BURST) -> None:
+        """Up to `n` PARAM_VALUEs to every peer with a list in progress (run() calls this; tests may too)."""
+        count = len(self.store)
+        for key, st in list(self._streams.items()):
+            for _ in range(n):
+                if st.next_index < 0:
+                    self.out.reply(st.origin, self._hash_msg())
+                else:
+                    self.out.reply(st.origin, self._value_msg(self.store.name_at(st.next_index)))
+                    self.list_values_sent += 1
+                st.next_index += 1
+                if st.next_index >= count:
+                    del self._streams[key]
+                    break
+
+    async def run(self) -> None:
+        """The owned task that paces list answers: a burst every LIST_BURST_PERIOD_S while any list streams."""
+        while True:
+            if not self._streams:
+                self._wake.clear()
+                await self._wake.wait()
+            try:
+                self.send_burst()
+            except Exception:  # a bug: log it, drop the streams, keep the task alive
+                log.exception("parameter list streaming failed")
+                self._streams.clear()
+            await asyncio.sleep(LIST_BURST_PERIOD_S)
+
+    # --- PARAM_REQUEST_READ ----------------------------------------------------------------------
     def handle_request_read(self, origin: Origin, msg: MavMessage) -> None:
-        names = self.store.names()
         index = int(msg.param_index)
         if index >= 0:
-            if index >= len(names):
-                self.statustext(origin, Severity.ERROR, f"[pm] param index out of range: {index}")
+            try:
+                name = self.store.name_at(index)
+            except IndexError:
+                self.statustext(origin, Severity.ERROR, f"[pm] unknown param ID: {index}")
                 return
-            name = names[index]
         else:
             name = str(msg.param_id)
-            if name not in names:
+            if name == HASH_PARAM:
+                self.out.reply(origin, self._hash_msg())
+                return
+            if name not in self.store:
                 self.statustext(origin, Severity.ERROR, f"[pm] unknown param: {name}")
                 return
-            index = names.index(name)
-        self.out.reply(origin, self._value_msg(name, index, len(names)))
+        self.out.reply(origin, self._value_msg(name))
 
+    # --- PARAM_SET -------------------------------------------------------------------------------
     def handle_set(self, origin: Origin, msg: MavMessage) -> None:
-        names = self.store.names()
         name = str(msg.param_id)
-        if name not in names:
+        if name == HASH_PARAM:  # QGC's cache matched: stop the list stream to this peer
+            self._streams.pop((origin.link, origin.addr), None)
+            return
+        if name not in self.store:
             self.sets_rejected += 1
             self.statustext(origin, Severity.ERROR, f"[pm] unknown param: {name}")
             return
@@ -97,6 +171,6 @@ class ParamProtocol:
             self.statustext(origin, Severity.ERROR, f"[pm] {name} rejected: {exc}")
         else:
             self.sets_accepted += 1
-            log.info("param %s = %s", name, self.store.get(name))
+            log.info("param %s = %s", name, self.store.stored(name))
         # PX4 announces the (new or unchanged) value to every link
-        self.out.broadcast(self._value_msg(name, names.index(name), len(names)))
+        self.out.broadcast(self._value_msg(name))
