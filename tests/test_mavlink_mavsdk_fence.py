@@ -7,6 +7,7 @@ from __future__ import annotations
 import asyncio
 import json
 import math
+from pathlib import Path
 
 import pytest
 from mav_client import VehicleThread
@@ -141,4 +142,45 @@ def test_mavsdk_geofence_plan_import_and_do_orbit() -> None:
             assert math.hypot(pv.position.north_m, pv.position.east_m) < 1.5
 
     with VehicleThread(cfg, speed=4.0) as vt:
+        asyncio.run(asyncio.wait_for(scenario(vt), 150.0))
+
+
+def test_mavsdk_goto_beyond_the_footage_with_the_default_footage_fence(tmp_path: Path) -> None:
+    """MAVSDK's goto example, unchanged, on a finite field: the default SIM_FTG_FENCE (1, warning) lets it fly past
+    the footage edge and land there."""
+    from mavsdk.asyncio import ComponentType, Configuration, Mavsdk
+    from mavsdk.asyncio.plugins.action.action import ActionAsync
+    from mavsdk.asyncio.plugins.telemetry.telemetry import TelemetryAsync
+
+    finite = tmp_path / "finite-synthetic.toml"
+    finite.write_text('name = "finite"\nkind = "synthetic"\n[synthetic]\nunbounded = false\n')
+    port = _free_udp_port()
+    cfg = MavlinkConfig(api_remote_port=port, gcs_remote_port=0, api_local_port=0, gcs_local_port=0)
+
+    async def scenario(vt: VehicleThread) -> None:
+        ap = vt.vehicle.autopilot  # type: ignore[union-attr]
+        edge_inside = vt.call(lambda: vt.vehicle.vehicle.inside_footage)  # type: ignore[union-attr]
+        assert edge_inside(100.0, 0.0) and not edge_inside(130.0, 0.0)  # the field ends at 102.4 m
+        config = Configuration.create_with_component_type(ComponentType.GROUND_STATION)
+        async with Mavsdk(config) as mavsdk:
+            await mavsdk.add_any_connection(f"udpin://127.0.0.1:{port}")
+            system = await mavsdk.first_autopilot(timeout_s=10.0)
+            tel, act = TelemetryAsync(system), ActionAsync(system)
+            assert await _first(tel.subscribe_health(), lambda h: h.is_armable, 10.0) is not None
+            await act.set_takeoff_altitude(6.0)
+            await act.arm()
+            await act.takeoff()
+            assert await _first(tel.subscribe_position(), lambda p: p.relative_altitude_m > 5.7, 20.0)
+            lat, lon = _ll(130.0, 0.0)
+            await act.goto_location(lat, lon, GEO.alt_amsl_m + 6.0, 0.0)
+            there = await _first(tel.subscribe_position_velocity_ned(),
+                                 lambda pv: pv.position.north_m > 129.0, 60.0)  # fmt: skip
+            assert there is not None
+            assert vt.call(lambda: ap.mode) == FlightMode.AUTO_LOITER
+            await act.land()
+            assert await _first(tel.subscribe_landed_state(), lambda s: int(s.value) == 1, 60.0) is not None
+            pv = await _first(tel.subscribe_position_velocity_ned(), lambda pv: True, 5.0)
+            assert pv.position.north_m > 125.0  # landed beyond the footage
+
+    with VehicleThread(cfg, speed=4.0, footage=finite) as vt:
         asyncio.run(asyncio.wait_for(scenario(vt), 150.0))
