@@ -219,8 +219,10 @@ class Autopilot:
         return self.tasks.orbit.approaching
 
     @property
-    def gimbal_pitch_yaw_deg(self) -> tuple[float, float]:
-        """Last gimbal (pitch, yaw) a mission item asked for (DO_MOUNT_CONTROL / DO_GIMBAL_MANAGER_PITCHYAW)."""
+    def gimbal_pitch_yaw_deg(self) -> tuple[float, float] | None:
+        """Last gimbal (pitch, yaw) in degrees a mission item asked for (DO_MOUNT_CONTROL /
+        DO_GIMBAL_MANAGER_PITCHYAW; pitch 0 level, -90 down; yaw relative to the nose), None before any.
+        Vehicle.render applies it to a `gimbal` camera mount."""
         return self.tasks.mission.gimbal_deg
 
     def pop_payload_actions(self) -> list[PayloadAction]:

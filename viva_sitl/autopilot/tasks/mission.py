@@ -57,7 +57,9 @@ class MissionTask:
         self.progress = MissionProgress()
         # payload: camera actions for the MAVLink camera component, the gimbal angle, PX4's distance trigger
         self.payload: list[PayloadAction] = []
-        self.gimbal_deg: tuple[float, float] = (0.0, 0.0)  # (pitch, yaw) the last gimbal item asked for
+        # (pitch, yaw) the last gimbal item asked for (MAVLink: pitch 0 level, -90 down; yaw from the nose, + right);
+        # None until one does (the camera keeps its configured mount)
+        self.gimbal_deg: tuple[float, float] | None = None
         self.trigger = DistanceTrigger()
 
     # --- the plan -----------------------------------------------------------------------------------
