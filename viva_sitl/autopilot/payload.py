@@ -1,7 +1,8 @@
 """Camera and gimbal mission items (pure): what an item asks the camera/gimbal to do, and PX4's distance trigger.
 
 The autopilot turns items into PayloadActions (routed by the MAVLink layer to the camera component, which renders
-and saves the VAC frame) and gimbal angles (reported by `Autopilot.gimbal_pitch_deg`; the renderer may apply them).
+and saves the VAC frame) and gimbal angles (`Autopilot.gimbal_pitch_yaw_deg`; `Vehicle.render` points a `gimbal`
+camera mount there).
 """
 
 from __future__ import annotations
