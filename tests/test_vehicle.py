@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -156,3 +158,17 @@ def test_mission_gimbal_item_pitches_the_rendered_view_of_a_gimbal_mount(mount: 
             assert np.mean(np.abs(after.image_bgr.astype(int) - before.image_bgr.astype(int))) > 5.0
         else:  # a fixed mount ignores gimbal items
             assert np.hypot(*shift) < 0.5
+
+
+def test_config_params_make_the_footage_edge_strict(tmp_path: Path) -> None:
+    finite = tmp_path / "finite-synthetic.toml"  # a 204.8 m field: (150, 0) is beyond its edge
+    finite.write_text('name = "finite"\nkind = "synthetic"\n[synthetic]\nunbounded = false\n')
+    with Vehicle(SimConfig(), footage=finite) as v:  # default SIM_FTG_FENCE 1: warn only
+        v.reset(pos_ned_m=(150.0, 0.0, 0.0))
+        assert v.autopilot.arm(v.time_s).ok
+    strict = SimConfig.from_dict({"params": {"SIM_FTG_FENCE": 2}})  # as a trial's config would
+    with Vehicle(strict, footage=finite) as v:
+        v.reset(pos_ned_m=(150.0, 0.0, 0.0))
+        assert v.autopilot.arm(v.time_s).reason == "Arming denied: outside footage (geofence)"
+        v.reset(pos_ned_m=(50.0, 0.0, 0.0))
+        assert v.autopilot.arm(v.time_s).ok
