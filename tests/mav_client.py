@@ -56,6 +56,7 @@ class VehicleThread:
         self._stop = asyncio.Event()
         self.vehicle = SelftestVehicle(speed=self.speed, camera=self.camera, footage=self.footage)
         self.endpoint = MavlinkEndpoint(self.vehicle, self.config)
+        self.vehicle.step_hooks.append(self.endpoint.on_sim_step)
         self.vehicle.start()
         await self.endpoint.start()
         self._ready.set()

@@ -261,6 +261,10 @@ class MavlinkPeer:
         )  # file=self: write()
         self.mav.robust_parsing = True
         self.peer: tuple[str, int] | None = None
+        # Every address that sent to us; with send_to_all, each message goes to all of them, as a ground station's
+        # one UDP link does when several vehicles (PX4 SITL -i 0, -i 1, ...) all send to its port 14550.
+        self.remotes: list[tuple[str, int]] = []
+        self.send_to_all = False
         self.records: list[Record] = []
         self.bad_data = 0
         self.lost = (
@@ -277,7 +281,10 @@ class MavlinkPeer:
 
     # --- I/O ---------------------------------------------------------------------------------------------------
     def write(self, buf: bytes) -> None:  # pymavlink calls this from mav.send()/xxx_send()
-        if self.peer is not None:
+        if self.send_to_all:
+            for addr in list(self.remotes):
+                self.sock.sendto(buf, addr)
+        elif self.peer is not None:
             self.sock.sendto(buf, self.peer)
 
     def send(self, msg: Any) -> None:
@@ -307,6 +314,8 @@ class MavlinkPeer:
             except (TimeoutError, OSError):
                 continue
             self.peer = addr
+            if addr not in self.remotes:
+                self.remotes.append(addr)
             msgs = parser.parse_buffer(data) or []
             t = time.monotonic()
             with self._cond:
@@ -540,6 +549,8 @@ class SetpointStreamer:
 
     def __init__(self, peer: MavlinkPeer, msg: Any) -> None:
         self.peer, self.msg = peer, msg  # replace .msg to change the setpoint
+        self.sent = 0
+        self._sent_cond = threading.Condition()
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, daemon=True)
         self._thread.start()
@@ -547,6 +558,15 @@ class SetpointStreamer:
     def _run(self) -> None:
         while not self._stop.wait(0.05):
             self.peer.send(self.msg)
+            with self._sent_cond:
+                self.sent += 1
+                self._sent_cond.notify_all()
+
+    def wait_sent(self, count: int, timeout_s: float = 10.0) -> None:
+        """Until `count` setpoints have gone out (20 = PX4's "stream for a second before OFFBOARD")."""
+        with self._sent_cond:
+            if not self._sent_cond.wait_for(lambda: self.sent >= count, timeout_s):
+                raise SitlError(f"only {self.sent} of {count} setpoints sent within {timeout_s} s")
 
     def stop(self) -> None:
         self._stop.set()

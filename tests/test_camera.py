@@ -231,7 +231,7 @@ def test_rendered_points_land_where_the_pinhole_model_says() -> None:
         att = (rng.uniform(-0.25, 0.25), rng.uniform(-0.25, 0.25), rng.uniform(-math.pi, math.pi))
         pos = (rng.uniform(-5, 5), rng.uniform(-5, 5), rng.uniform(-90, -35))
         res = renderer.render(pyramid, pos, att)
-        levels.add(res.pyramid_level)
+        levels.update({res.pyramid_level, res.pyramid_level + (res.lod_blend > 0.0)})  # levels read
         uv = project_ned(pts, pos, att, p)
         for q in uv:
             if np.all(np.isfinite(q)) and 15 <= q[0] <= 624 and 15 <= q[1] <= 464:
@@ -365,7 +365,8 @@ def test_antialiasing_real_footage() -> None:
     pos, att = (0.0, 0.0, -70.0), (0.0, 0.0, 0.1)  # ~8.4 footage px per VAC px
     ours = Renderer(small, geom).render(LazyPyramid(img), pos, att)
     plain = Renderer(dataclasses.replace(small, antialias=False), geom).render(img, pos, att)
-    assert ours.coverage == pytest.approx(1.0) and ours.pyramid_level == 3
+    # trilinear: lod = log2(8.4) - 0.5 = 2.57, levels 2 and 3 blended
+    assert ours.coverage == pytest.approx(1.0) and ours.pyramid_level == 2 and ours.lod_blend > 0.5
     ref = supersampled_reference(img, geom, small, pos, att)
     assert psnr(ours.image_bgr, ref) >= psnr(plain.image_bgr, ref) + 3.0
 
@@ -377,7 +378,7 @@ def test_lazy_pyramid_builds_only_what_is_needed() -> None:
     Renderer(CameraParams(), GEOM_1080).render(pyr, (0.0, 0.0, -30.0), (0.0, 0.0, 0.0))  # zoomed in: level 0
     assert pyr.built_levels == 1
     res = Renderer(CameraParams(), GEOM_1080).render(pyr, (0.0, 0.0, -250.0), (0.0, 0.0, 0.0))
-    assert res.pyramid_level == 2 and pyr.built_levels == 3
+    assert res.pyramid_level == 2 and pyr.built_levels == 4  # levels 2 and 3 blended (trilinear)
     full = build_pyramid(img, 4)
     assert [a.shape for a in full] == [
         (1080, 1920, 3),

@@ -24,9 +24,30 @@ from viva_sitl.dynamics.rotation import euler_from_quat, euler_from_rot, quat_fr
 C = np.diag([1.0, -1.0, -1.0])
 
 
+def rot_x(a: float) -> np.ndarray:
+    """Elementary rotation about x by a (right-handed, active)."""
+    c, s = math.cos(a), math.sin(a)
+    return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
+
+
+def rot_y(a: float) -> np.ndarray:
+    c, s = math.cos(a), math.sin(a)
+    return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
+
+
+def rot_z(a: float) -> np.ndarray:
+    c, s = math.cos(a), math.sin(a)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def reference_body_to_ned(roll: float, pitch: float, yaw: float) -> np.ndarray:
+    """ZYX (yaw, pitch, roll) body-to-NED rotation composed from the elementary rotations, not from the package."""
+    return rot_z(yaw) @ rot_y(pitch) @ rot_x(roll)
+
+
 def paper_step_zup(x1, x2, roll, pitch, yaw, thrust, xi, m, kd, g, dt):
     """The paper's equation written independently in a z-up frame with thrust along body +z."""
-    r_paper = C @ rot_body_to_ned(roll, pitch, yaw) @ C
+    r_paper = C @ reference_body_to_ned(roll, pitch, yaw) @ C
     e3 = np.array([0.0, 0.0, 1.0])
     return 2 * x1 - x2 + dt**2 / m * (r_paper @ e3 * thrust - m * g * e3 - kd / dt * (x1 - x2) + xi)
 
@@ -182,6 +203,43 @@ def test_non_finite_command_rejected() -> None:
 def test_bad_params_rejected() -> None:
     with pytest.raises(ValueError, match="mass_kg"):
         EavParams(mass_kg=0.0)
+
+
+def test_rotation_matches_an_independent_zyx_reference() -> None:
+    rng = np.random.default_rng(3)
+    for _ in range(200):
+        r, p, y = rng.uniform(-1.5, 1.5), rng.uniform(-1.5, 1.5), rng.uniform(-math.pi, math.pi)
+        assert np.allclose(rot_body_to_ned(r, p, y), reference_body_to_ned(r, p, y), atol=1e-12), (r, p, y)
+    # physical meaning, each axis alone: FRD body axes seen in NED
+    quarter = math.pi / 2
+    assert np.allclose(rot_body_to_ned(0, 0, quarter) @ (1, 0, 0), (0, 1, 0))  # yaw +90: nose points east
+    assert np.allclose(rot_body_to_ned(0, quarter, 0) @ (1, 0, 0), (0, 0, -1))  # pitch +90: nose points up
+    assert np.allclose(rot_body_to_ned(quarter, 0, 0) @ (0, 1, 0), (0, 0, 1))  # roll +90: right wing down
+
+
+def test_quaternion_matches_the_rotation_matrix() -> None:
+    """quat_from_euler against the matrix built from the quaternion's textbook formula."""
+    rng = np.random.default_rng(4)
+    for _ in range(200):
+        r, p, y = rng.uniform(-1.5, 1.5), rng.uniform(-1.5, 1.5), rng.uniform(-math.pi, math.pi)
+        w, x, q2, z = quat_from_euler(r, p, y)
+        from_quat = np.array(
+            [
+                [1 - 2 * (q2 * q2 + z * z), 2 * (x * q2 - w * z), 2 * (x * z + w * q2)],
+                [2 * (x * q2 + w * z), 1 - 2 * (x * x + z * z), 2 * (q2 * z - w * x)],
+                [2 * (x * z - w * q2), 2 * (q2 * z + w * x), 1 - 2 * (x * x + q2 * q2)],
+            ]
+        )
+        assert np.allclose(from_quat, reference_body_to_ned(r, p, y), atol=1e-12), (r, p, y)
+
+
+def test_rotation_matches_scipy_when_available() -> None:
+    spatial = pytest.importorskip("scipy.spatial.transform")
+    rng = np.random.default_rng(5)
+    for _ in range(50):
+        r, p, y = rng.uniform(-1.5, 1.5), rng.uniform(-1.5, 1.5), rng.uniform(-math.pi, math.pi)
+        ref = spatial.Rotation.from_euler("ZYX", [y, p, r]).as_matrix()  # intrinsic z-y'-x''
+        assert np.allclose(rot_body_to_ned(r, p, y), ref, atol=1e-12)
 
 
 def test_rotation_round_trips() -> None:

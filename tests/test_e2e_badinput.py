@@ -155,7 +155,7 @@ def test_nan_setpoints_in_offboard_flight_are_ignored(
     )
     streamer = SetpointStreamer(peer, hold)
     try:
-        time.sleep(1.5)  # PX4 wants the stream flowing for about 1 s before OFFBOARD
+        streamer.wait_sent(20)  # PX4 wants the stream flowing for about 1 s before OFFBOARD
         ack = peer.command_long(mavlink2.MAV_CMD_DO_SET_MODE, [129.0, 6.0, 0.0])
         assert ack.result == mavlink2.MAV_RESULT_ACCEPTED, (
             f"OFFBOARD with a setpoint stream: MAV_RESULT {ack.result}"
@@ -176,7 +176,12 @@ def test_nan_setpoints_in_offboard_flight_are_ignored(
             peer.send(
                 mav.set_attitude_target_encode(0, 1, 1, ATTITUDE_MASK, [NAN, NAN, NAN, NAN], 0, 0, 0, INF)
             )
-            time.sleep(0.05)
+            time.sleep(0.05)  # the abuse's own pace (20 Hz, like the stream it poisons), not a wait
+        # what the last poison did shows within a second of sim time (time_boot_ms)
+        last_ms = peer.wait("LOCAL_POSITION_NED", timeout_s=3.0).time_boot_ms
+        peer.wait(
+            "LOCAL_POSITION_NED", lambda m: m.time_boot_ms >= last_ms + 1000, 5.0, what="1 s after the abuse"
+        )
         poisoned = peer.messages("LOCAL_POSITION_NED", since_s=abuse_start)
         assert poisoned, "no telemetry during the abuse"
         for m in poisoned:

@@ -40,7 +40,7 @@ def autopilot_mode(peer: MavlinkPeer, mode: int, timeout_s: float, what: str) ->
 
 def enter_offboard(peer: MavlinkPeer, setpoint: Any) -> SetpointStreamer:
     streamer = SetpointStreamer(peer, setpoint)
-    time.sleep(1.0)  # let the 20 Hz stream flow first, as PX4 wants
+    streamer.wait_sent(20)  # a second of the 20 Hz stream first, as PX4 wants
     ack = peer.command_long(mavlink2.MAV_CMD_DO_SET_MODE, [129.0, 6.0, 0.0])
     assert ack.result == mavlink2.MAV_RESULT_ACCEPTED, f"OFFBOARD: MAV_RESULT {ack.result}"
     autopilot_mode(peer, MODE_OFFBOARD, 3.0, "OFFBOARD")
@@ -84,8 +84,18 @@ def test_offboard_setpoint_loss_falls_back_to_hold(
         0, 1, 1, 1, POSITION_MASK, hover.x, hover.y, -3.0, 0, 0, 0, 0, 0, 0, 0, 0
     )
     streamer = enter_offboard(peer, hold)
-    time.sleep(0.5)
-    assert peer.wait("HEARTBEAT", lambda m: m.get_srcComponent() == 1, 2.0).custom_mode == MODE_OFFBOARD
+    # While the stream flows, OFFBOARD holds for longer than the loss timeout (1.5 x COM_OF_LOSS_T of sim time,
+    # as time_boot_ms tells).
+    entered = time.monotonic()
+    t_ms = peer.wait("LOCAL_POSITION_NED", timeout_s=5.0).time_boot_ms
+    peer.wait(
+        "LOCAL_POSITION_NED",
+        lambda m: m.time_boot_ms >= t_ms + 1500.0 * loss_s,
+        10.0 + 1.5 * loss_s,
+        what="1.5 x COM_OF_LOSS_T of streaming in OFFBOARD",
+    )
+    modes = {m.custom_mode for m in peer.messages("HEARTBEAT", since_s=entered, component=1)}
+    assert modes == {MODE_OFFBOARD}, f"left OFFBOARD while setpoints streamed: modes {modes}"
     streamer.stop()
     lost = time.monotonic()
     # COM_OBL_RC_ACT 0 without RC -> Hold, after COM_OF_LOSS_T of sim time (shorter in wall time at a speed factor).
@@ -139,9 +149,17 @@ def test_footage_edge_geofence_holds_inside_and_refuses_outside_missions(
     assert settled.x > 80.0, (
         f"holding at x = {settled.x:.1f} m, far from the edge at {SYNTHETIC_HALF_SIZE_M} m"
     )
-    time.sleep(1.0)
-    x, _, _ = peer.local_position()
-    assert abs(x - settled.x) < 1.0, f"not holding: x went {settled.x:.1f} -> {x:.1f} m"
+    # holding: over the next 3 s of sim time (time_boot_ms) every position stays within 1 m of where it settled
+    t_settled = time.monotonic()
+    peer.wait(
+        "LOCAL_POSITION_NED",
+        lambda m: m.time_boot_ms >= settled.time_boot_ms + 3000,
+        10.0,
+        what="3 s of sim time in Hold",
+    )
+    xs = [m.x for m in peer.messages("LOCAL_POSITION_NED", since_s=t_settled)]
+    worst = max(xs, key=lambda x: abs(x - settled.x))
+    assert abs(worst - settled.x) < 1.0, f"not holding: x went {settled.x:.1f} -> {worst:.1f} m"
     assert max(m.x for m in peer.messages("LOCAL_POSITION_NED")) < SYNTHETIC_HALF_SIZE_M + 15.0, (
         "overshot far"
     )

@@ -143,7 +143,21 @@ def client() -> Iterator[MavClient]:
 
 @pytest.fixture
 def vehicle(client: MavClient) -> Iterator[VehicleThread]:
-    cfg = MavlinkConfig(api_remote_port=client.port, gcs_remote_port=0, api_local_port=0, gcs_local_port=0)
+    # Telemetry runs per sim second (3x the wall rate here) and this client shares the process (GIL) with the
+    # vehicle: only the streams these tests read, so the client keeps up and its setpoint stream stays regular.
+    rates = (
+        ("ATTITUDE", 30.0),
+        ("ATTITUDE_QUATERNION", 0.0),
+        ("GLOBAL_POSITION_INT", 5.0),
+        ("ALTITUDE", 0.0),
+    )
+    cfg = MavlinkConfig(
+        api_remote_port=client.port,
+        gcs_remote_port=0,
+        api_local_port=0,
+        gcs_local_port=0,
+        rate_overrides=rates,
+    )
     with VehicleThread(cfg, speed=3.0) as vt:
         client.target = vt.api
         yield vt
@@ -178,6 +192,7 @@ def test_offboard_refused_without_stream_then_position_and_velocity(
     )
     _stream(client, pos, 1.0)
     assert client.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1).result == M.MAV_RESULT_ACCEPTED  # type: ignore[union-attr]
+    client.send(pos)  # the stream goes on while we wait for acks (MAVSDK streams in the background)
     ack = client.command(M.MAV_CMD_DO_SET_MODE, 129, 6, 0)
     assert ack is not None and ack.result == M.MAV_RESULT_ACCEPTED
     _stream(client, pos, 2.5)
@@ -204,6 +219,7 @@ def test_offboard_attitude_thrust_hover_and_climb(client: MavClient, vehicle: Ve
     climb = mav.set_attitude_target_encode(0, 1, 1, 7, [1, 0, 0, 0], 0, 0, 0, min(1.0, hover + 0.15))
     _stream(client, climb, 1.0)
     assert client.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1).result == M.MAV_RESULT_ACCEPTED  # type: ignore[union-attr]
+    client.send(climb)  # the stream goes on while we wait for acks (MAVSDK streams in the background)
     assert client.command(M.MAV_CMD_DO_SET_MODE, 1, 6, 0).result == M.MAV_RESULT_ACCEPTED  # type: ignore[union-attr]
     _stream(client, climb, 1.0)
     climbing = _stream_until(client, climb, lambda m: m.get_type() == "LOCAL_POSITION_NED")

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import math
 import struct
+import subprocess
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -14,6 +15,7 @@ import pytest
 from mav_client import MavClient, VehicleThread
 from pymavlink.dialects.v20 import common as M
 
+import viva_sitl
 from viva_sitl.autopilot import FlightMode, ParamStore
 from viva_sitl.mavlink import MavlinkConfig
 from viva_sitl.mavlink.selftest import SnapshotCamera
@@ -98,7 +100,19 @@ def test_autopilot_version_via_request_message_and_legacy_command(
         | M.MAV_PROTOCOL_CAPABILITY_MAVLINK2
     )
     assert ver.capabilities & needed == needed
-    assert ver.flight_sw_version >> 24 == 1  # PX4 v1.x
+    # the package version in PX4's encoding: major<<24 | minor<<16 | patch<<8 | type (255 = official release)
+    major, minor, patch = (int(x) for x in viva_sitl.__version__.split(".")[:3])
+    sw = ver.flight_sw_version
+    assert (sw >> 24, (sw >> 16) & 0xFF, (sw >> 8) & 0xFF, sw & 0xFF) == (major, minor, patch, 255)
+    # the commit of this checkout, as PX4 stores it: the first 16 hex digits as a little-endian uint64
+    head = subprocess.run(
+        ["git", "-C", str(Path(viva_sitl.__file__).parents[1]), "rev-parse", "HEAD"],
+        capture_output=True, text=True, check=False,
+    ).stdout.strip()  # fmt: skip
+    if head:
+        assert bytes(reversed(bytes(ver.flight_custom_version))).hex() == head[:16]
+    else:
+        assert bytes(ver.flight_custom_version) == bytes(8)
     client.received.clear()
     ack = client.command(M.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES, 1)
     assert ack is not None and ack.result == M.MAV_RESULT_ACCEPTED
@@ -446,7 +460,7 @@ def test_takeoff_amsl_altitude_then_reposition_command_int(
         1, 1, M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, M.MAV_CMD_DO_REPOSITION, 0, 0,
         -1, 1, 0, NAN, round(lat * 1e7), round(lon * 1e7), 4.0,
     ))  # fmt: skip
-    a = client.wait_for(lambda m: m.get_type() == "COMMAND_ACK" and m.command == M.MAV_CMD_DO_REPOSITION, 0.5)
+    a = client.wait_for(lambda m: m.get_type() == "COMMAND_ACK" and m.command == M.MAV_CMD_DO_REPOSITION, 3.0)
     assert a is not None and a.result == M.MAV_RESULT_ACCEPTED
     lp = client.wait_for(
         lambda m: (

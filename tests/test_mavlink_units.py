@@ -214,6 +214,7 @@ def test_endpoint_start_errors_are_clear() -> None:
     import socket
 
     from viva_sitl.mavlink import MavlinkEndpoint
+    from viva_sitl.mavlink.endpoint import PortInUseError
 
     vehicle = SelftestVehicle()
     bad_host = MavlinkConfig(
@@ -227,7 +228,10 @@ def test_endpoint_start_errors_are_clear() -> None:
         busy = MavlinkConfig(
             api_local_port=taken.getsockname()[1], gcs_local_port=0, api_remote_port=0, gcs_remote_port=0
         )
-        with pytest.raises(OSError, match="cannot bind"):
+        port = taken.getsockname()[1]
+        with pytest.raises(
+            PortInUseError, match=rf"UDP port {port} \(api link\).*already in use.*--instance N"
+        ):
             asyncio.run(MavlinkEndpoint(vehicle, busy).start())
     finally:
         taken.close()

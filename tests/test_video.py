@@ -165,6 +165,41 @@ def run_stream(pipeline: VideoPipeline, counter_now: list[int]) -> FrameSchedule
     return sched
 
 
+def wait_until(cond: Callable[[], bool], timeout_s: float, what: str) -> None:
+    """Poll `cond` until it holds; fail naming `what` after `timeout_s`."""
+    deadline = time.monotonic() + timeout_s
+    while not cond():
+        assert time.monotonic() < deadline, f"timed out after {timeout_s} s waiting for {what}"
+        time.sleep(0.005)  # polling interval
+
+
+def submit_and_wait_written(pipe: VideoPipeline, frame: RenderedFrame, timeout_s: float = 10.0) -> None:
+    """Submit `frame` once every output has written the previous ones, then wait until they wrote it too: with
+    nothing waiting in any queue, no frame can be dropped, so the outputs see exactly the submitted sequence."""
+    before = pipe.stats()["outputs"]
+    assert pipe.submit(frame), "an output queue was not empty"
+    n = pipe.stats()["submitted"]
+    wait_until(
+        lambda: all(o["sent"] + o["dropped"] + o["errors"] >= n for o in pipe.stats()["outputs"].values()),
+        timeout_s,
+        f"frame {frame.meta.frame_counter} handled by every output",
+    )
+    after = pipe.stats()["outputs"]
+    for name, o in after.items():
+        assert (o["dropped"], o["errors"]) == (before[name]["dropped"], before[name]["errors"]), (name, o)
+
+
+def wait_for_first_frame(client: FrameClient, pipe: VideoPipeline, timeout_s: float = 10.0) -> None:
+    """ZeroMQ's slow joiner: publish a probe frame until the subscription has reached the publisher, then drain."""
+    probe = synthetic_frame(999)
+    deadline = time.monotonic() + timeout_s
+    while client.receive(timeout_s=0.05) is None:
+        assert time.monotonic() < deadline, "the frame socket subscription never reached the publisher"
+        pipe.submit(probe)
+    while client.receive(timeout_s=0.2) is not None:
+        pass
+
+
 # -- config, SDP, stamp ----------------------------------------------------------------------------------------------
 def test_config_defaults_validation_and_instances() -> None:
     c = VideoConfig()
@@ -216,18 +251,18 @@ def test_stamp_survives_jpeg_and_rejects_unstamped() -> None:
 
 
 # -- RTP wire level --------------------------------------------------------------------------------------------------
-def _rtp_headers(sock: socket.socket) -> list[tuple[int, int, int]]:
+def _rtp_headers(sock: socket.socket, done: threading.Event) -> list[tuple[int, int, int]]:
+    """(payload type, timestamp, marker) of every datagram, until `done` is set and the socket has run dry."""
     out = []
-    sock.settimeout(1.0)
-    try:
-        while True:
+    sock.settimeout(0.2)
+    while True:
+        try:
             d = sock.recv(65536)
-            out.append(
-                (d[1] & 0x7F, int.from_bytes(d[4:8], "big"), d[1] >> 7)
-            )  # (payload type, timestamp, marker)
-    except TimeoutError:
-        pass
-    return out
+        except TimeoutError:
+            if done.is_set():
+                return out
+            continue
+        out.append((d[1] & 0x7F, int.from_bytes(d[4:8], "big"), d[1] >> 7))
 
 
 @pytest.mark.parametrize(("kind", "payload_type"), [("h264", 96), ("mjpeg", 26)])
@@ -237,19 +272,24 @@ def test_rtp_timestamps_advance_90000_over_fps(tmp_path: Path, kind: str, payloa
     with closing(socket.socket(socket.AF_INET, socket.SOCK_DGRAM)) as rx:
         rx.bind(("127.0.0.1", port))
         headers: list[tuple[int, int, int]] = []
-        reader = threading.Thread(target=lambda: headers.extend(_rtp_headers(rx)), daemon=True)
+        done = threading.Event()
+        reader = threading.Thread(target=lambda: headers.extend(_rtp_headers(rx, done)), daemon=True)
         reader.start()  # read while sending: a keyframe burst would overflow an unread socket buffer
         with VideoPipeline(cfg, W, H) as pipe:
             t0 = time.time()
             for k in range(8):
                 # frame 5 was never rendered (dropped upstream): its slot stays empty in RTP time
                 if k != 5:
-                    pipe.submit(RenderedFrame(synthetic_image(k), make_meta(k, t0 + k / FPS)))
-                time.sleep(0.01)
-            time.sleep(0.2)
+                    submit_and_wait_written(
+                        pipe, RenderedFrame(synthetic_image(k), make_meta(k, t0 + k / FPS))
+                    )
+        done.set()  # every frame was sent before the pipeline stopped: what is left is in the socket buffer
         sdp = pipe.sdp_paths[kind].read_text()
         assert f"m=video {port} RTP/AVP {payload_type}" in sdp
         reader.join(5)
+        assert not reader.is_alive()
+        out = pipe.stats()["outputs"][f"{kind}_rtp"]
+        assert (out["sent"], out["dropped"], out["errors"]) == (7, 0, 0), out
     assert headers and {pt for pt, _, _ in headers} == {payload_type}
     stamps = sorted({ts for _, ts, _ in headers})
     steps = np.diff(stamps).tolist()
@@ -268,9 +308,11 @@ def test_h264_rtp_pyav_receiver_matches_frame_socket(tmp_path: Path) -> None:
         endpoint = pipe.frame_socket_endpoint
         assert endpoint is not None and not endpoint.endswith(":*")
         with FrameClient(endpoint, latest_only=False, rcvhwm=1000) as client:
-            time.sleep(0.2)  # ZeroMQ subscription reaches the publisher
             sched = run_stream(pipe, counter_now)
-            time.sleep(0.6)  # the receiver joins a running stream, between keyframes
+            # the socket subscription is live once a frame arrives
+            assert client.receive(timeout_s=10.0) is not None, "no frame on the frame socket"
+            # the receiver joins a running stream, between keyframes (GOP of 30)
+            wait_until(lambda: counter_now[0] % cfg.gop in range(10, 20), 10.0, "mid-GOP tick")
             rx = Collector(pipe.sdp_paths["h264"], n_frames=45, counter_now=counter_now)
             deadline = time.monotonic() + 20
             while rx.thread.is_alive() and time.monotonic() < deadline:
@@ -289,10 +331,12 @@ def test_h264_rtp_pyav_receiver_matches_frame_socket(tmp_path: Path) -> None:
     assert len(rx.frames) == 45 and None not in counters, counters
     # joined mid-stream: the first picture is the next keyframe, within one GOP of joining
     first = counters[0]
-    late = sched.stats()["late_skipped"]  # skipped ticks stretch the keyframe interval measured in ticks
+    # skipped ticks and frames dropped before the encoder stretch the keyframe interval measured in ticks
+    late = sched.stats()["late_skipped"] + h264["dropped"]
     assert first is not None and rx.join_counter <= first <= rx.join_counter + cfg.gop + late + 2, (
         rx.join_counter,
         first,
+        late,
     )
     assert counters == sorted(counters) and len(set(counters)) == len(counters)
     # frames change over time
@@ -375,9 +419,14 @@ def test_h264_rtp_gstreamer_receiver(tmp_path: Path) -> None:
     try:
         with VideoPipeline(cfg, W, H) as pipe:
             sched = run_stream(pipe, counter_now)
-            time.sleep(2.0)
+            wait_until(lambda: pipe.stats()["outputs"]["h264_rtp"]["sent"] >= 60, 30.0, "60 frames sent")
             sched.stop()
-            time.sleep(0.3)
+        # GStreamer has decoded (at least) what the test needs before it is interrupted (or it has exited)
+        wait_until(
+            lambda: proc.poll() is not None or (raw.exists() and raw.stat().st_size >= 45 * W * H * 3),
+            10.0,
+            "45 frames decoded",
+        )
     finally:
         proc.send_signal(signal.SIGINT)
         _, err = proc.communicate(timeout=10)
@@ -419,7 +468,7 @@ def test_mjpeg_rtp_pyav_receiver(tmp_path: Path) -> None:
     counter_now = [0]
     with VideoPipeline(cfg, W, H) as pipe:
         sched = run_stream(pipe, counter_now)
-        time.sleep(0.3)
+        wait_until(lambda: pipe.stats()["outputs"]["mjpeg_rtp"]["sent"] >= 5, 10.0, "the stream running")
         rx = Collector(pipe.sdp_paths["mjpeg"], n_frames=30, counter_now=counter_now)
         rx.join(25)
         sched.stop()
@@ -443,12 +492,14 @@ def test_frame_socket_metadata_and_image(tmp_path: Path, encoding: FrameEncoding
         endpoint = pipe.frame_socket_endpoint
         assert endpoint is not None
         with FrameClient(endpoint, latest_only=False, rcvhwm=100) as client:
-            time.sleep(0.2)
+            wait_for_first_frame(client, pipe)
             sent = [synthetic_frame(k) for k in range(10)]
             for f in sent:
-                assert pipe.submit(f)
-                time.sleep(0.01)
-            got = list(client.frames(timeout_s=1.0))
+                submit_and_wait_written(pipe, f)
+            received = [client.receive(timeout_s=5.0) for _ in sent]
+            got = [item for item in received if item is not None]
+            assert len(got) == len(sent), f"{len(got)} of {len(sent)} frames arrived"
+            assert client.receive(timeout_s=0.2) is None, "more frames than were sent"
     assert [m["frame_counter"] for _, m in got] == list(range(10))
     for (img, meta), f in zip(got, sent, strict=True):
         want: dict[str, Any] = f.meta.to_dict()
@@ -485,13 +536,39 @@ def test_frame_socket_wire_format_errors_and_latest_only() -> None:
     port = pub.bind_to_random_port("tcp://127.0.0.1")
     try:
         with FrameClient(f"tcp://127.0.0.1:{port}", latest_only=True, rcvhwm=50) as client:
-            time.sleep(0.2)
-            for k in range(5):
-                pub.send_multipart(encode_message(synthetic_frame(k)))
-            time.sleep(0.3)
-            item = client.receive(timeout_s=1.0)
-            assert item is not None and item[1]["frame_counter"] == 4 and item[1]["skipped"] == 4
-            assert client.receive(timeout_s=0.1) is None
+            probe = encode_message(synthetic_frame(999))
+            deadline = time.monotonic() + 10.0
+            # ZeroMQ's slow joiner: publish probes until the subscription is live
+            while client.receive(timeout_s=0.05) is None:
+                assert time.monotonic() < deadline, "subscription never reached the publisher"
+                pub.send_multipart(probe)
+            while client.receive(timeout_s=0.2) is not None:
+                pass
+            # Each receive hands over the newest frame that has arrived and counts the ones it passed over; how
+            # many arrived before a receive depends on timing, so assert what latest_only guarantees:
+            # increasing counters, the newest frame always delivered, delivered + skipped = sent; and waiting frames
+            # are skipped (seen in at least one of a few bursts: how many arrive before a receive is up to TCP).
+            skipped_any = False
+            for burst in range(10):
+                first = 5 * burst
+                for k in range(first, first + 5):
+                    pub.send_multipart(encode_message(synthetic_frame(k)))
+                assert client._sock.poll(5000, zmq.POLLIN), "nothing arrived"
+                # a moment for the rest of the burst to arrive; if it has not, the next burst tries again
+                time.sleep(0.05)
+                delivered: list[tuple[int, int]] = []
+                while not delivered or delivered[-1][0] != first + 4:
+                    item = client.receive(timeout_s=5.0)
+                    assert item is not None, f"frame {first + 4} never delivered; got {delivered}"
+                    delivered.append((item[1]["frame_counter"], item[1]["skipped"]))
+                counters = [c for c, _ in delivered]
+                assert counters == sorted(set(counters)) and counters[0] >= first, delivered
+                assert len(delivered) + sum(n for _, n in delivered) == 5, delivered
+                assert client.receive(timeout_s=0.1) is None
+                if delivered[0][1] > 0:
+                    skipped_any = True
+                    break
+            assert skipped_any, "latest_only never skipped a waiting frame"
     finally:
         pub.close(0)
         ctx.term()
@@ -499,19 +576,21 @@ def test_frame_socket_wire_format_errors_and_latest_only() -> None:
 
 # -- real time: dropping, scheduler, recorder ------------------------------------------------------------------------
 class SlowSink:
-    """A deliberately slow output: 40 ms per frame (~25 fps) behind a stream fed at ~100 fps."""
+    """A deliberately slow output: its first write does not return until `release` is set (an encoder stuck for as
+    long as the test submits), so whatever else is submitted meanwhile must be dropped, however loaded the machine."""
 
     name = "slow_sink"
 
     def __init__(self) -> None:
         self.written: list[int] = []
         self.opened = self.closed = False
+        self.release = threading.Event()
 
     def open(self) -> None:
         self.opened = True
 
     def write(self, frame: RenderedFrame) -> None:
-        time.sleep(0.04)
+        assert self.release.wait(30.0), "the test never released the sink"
         self.written.append(frame.meta.frame_counter)
 
     def close(self) -> None:
@@ -528,11 +607,13 @@ def test_slow_output_drops_frames_and_submit_never_blocks(tmp_path: Path) -> Non
             t = time.perf_counter()
             pipe.submit(f)
             submit_ms.append((time.perf_counter() - t) * 1e3)
-            time.sleep(0.01)
+            time.sleep(0.01)  # the stream's pace (100 fps), not a wait: the other outputs keep up with it
+        sink.release.set()
     stats = pipe.stats()
     slow = stats["outputs"]["slow_sink"]
     assert sink.opened and sink.closed
-    assert slow["dropped"] > 10, stats
+    # the stuck sink held one frame in write and one in its queue (queue_size 1): every other one was dropped
+    assert slow["dropped"] >= 60 - 3 and len(sink.written) <= 3, stats
     # everything submitted was either written or dropped: nothing lost silently, nothing left queued
     assert slow["sent"] + slow["dropped"] == stats["submitted"] == 60
     assert sink.written == sorted(sink.written) and sink.written[-1] == 59  # drop-oldest keeps the newest
@@ -557,7 +638,7 @@ def test_scheduler_keeps_the_clock_when_rendering_is_late() -> None:
     sched = FrameScheduler(render, submit, FPS)
     t0 = time.monotonic()
     sched.start()
-    time.sleep(1.0)
+    wait_until(lambda: bool(got) and got[-1] >= 30, 10.0, "30 ticks")  # a second of the stream's clock
     sched.stop()
     elapsed = time.monotonic() - t0
     st = sched.stats()
@@ -573,9 +654,8 @@ def test_recorder_writes_complete_mp4(tmp_path: Path) -> None:
     cfg = config(tmp_path, h264_rtp=False, frame_socket=False, record_path=str(path), stamp_counter=True)
     t0 = time.time()
     with VideoPipeline(cfg, W, H) as pipe:
-        for k in range(20):
-            pipe.submit(RenderedFrame(synthetic_image(k), make_meta(k, t0 + k / FPS)))
-            time.sleep(0.005)
+        for k in range(20):  # one at a time: nothing dropped, so the file holds exactly these 20
+            submit_and_wait_written(pipe, RenderedFrame(synthetic_image(k), make_meta(k, t0 + k / FPS)))
         assert not path.exists()  # still being written (as .part)
     assert path.is_file() and not (tmp_path / "vac.mp4.part").exists()
     with av.open(str(path)) as c:

@@ -18,7 +18,6 @@ import signal
 import sys
 import time
 from pathlib import Path
-from typing import Any
 
 import cv2
 
@@ -26,10 +25,12 @@ from viva_sitl.autopilot import Autopilot, ParamStore
 from viva_sitl.clock import RealTimePacer, run_paced
 from viva_sitl.config import ConfigError, SimConfig
 from viva_sitl.dashboard.config import DashboardConfig
+from viva_sitl.dashboard.server import Dashboard
 from viva_sitl.dynamics import EavState
 from viva_sitl.frame import RenderedFrame
 from viva_sitl.geo import GeoOrigin, home_from_env
 from viva_sitl.mavlink import CameraInfo, CaptureResult, MavlinkEndpoint, StreamEncoding, VideoStreamSpec
+from viva_sitl.mavlink.endpoint import EndpointStartError
 from viva_sitl.sim import Simulator
 from viva_sitl.vehicle import Vehicle
 from viva_sitl.video import FrameScheduler, VideoPipeline
@@ -60,17 +61,11 @@ class SitlApp:
         self.scheduler: FrameScheduler | None = None
         self.last_frame: RenderedFrame | None = None
         # --- dashboard (viva_sitl/dashboard): construction ---------------------------------------------
-        self.dashboard: Any = None  # viva_sitl.dashboard.server.Dashboard when enabled
+        self.dashboard: Dashboard | None = None
         self.dashboard_note = ""  # why there is none, for the ready line
         dash_cfg = dashboard if dashboard is not None else DashboardConfig(enabled=False)
         if dash_cfg.enabled:
-            try:
-                from viva_sitl.dashboard.server import Dashboard
-            except ImportError:
-                self.dashboard_note = "off (aiohttp missing: pip install 'viva-sitl[dashboard]')"
-                log.warning("dashboard %s", self.dashboard_note)
-            else:
-                self.dashboard = Dashboard(self, dash_cfg)
+            self.dashboard = Dashboard(self, dash_cfg)
         # --- end dashboard ----------------------------------------------------------------------------
         if video:
             self.run_dir.mkdir(parents=True, exist_ok=True)
@@ -82,7 +77,13 @@ class SitlApp:
             self.scheduler = FrameScheduler(
                 self._render_tick, self.video.submit, config.video.fps, name="viva-render"
             )
-        self.endpoint = MavlinkEndpoint(self, config.mavlink)
+        mav = config.mavlink
+        # a .tlog of every run, in its run directory (as QGroundControl logs every flight)
+        if mav.tlog and not mav.tlog_path:
+            mav = dataclasses.replace(mav, tlog_path=str(self.run_dir / "telemetry.tlog"))
+        elif not mav.tlog:
+            mav = dataclasses.replace(mav, tlog_path=None)
+        self.endpoint = MavlinkEndpoint(self, mav)
         self._stopping = asyncio.Event()
         self._physics_task: asyncio.Task[None] | None = None
 
@@ -156,6 +157,7 @@ class SitlApp:
         if self.dashboard is not None:  # its sticks reach the autopilot at every step (an RC receiver)
             self.dashboard.before_step(self.vehicle.time_s)
         self.vehicle.step(1)
+        self.endpoint.on_sim_step()  # telemetry, heartbeats and MAVLink timers run on sim time
 
     def _after_batch(self) -> None:
         self.state_wall_time_s = time.time()
@@ -209,6 +211,8 @@ class SitlApp:
             f"mavlink api udp {api_host}:{api_port} -> {m.api_remote_host}:{m.api_remote_port_resolved}",
             f"gcs udp {gcs_host}:{gcs_port} -> {m.gcs_remote_host}:{m.gcs_remote_port}",
         ]
+        if self.endpoint.tlog_path:
+            parts.append(f"tlog {Path(self.endpoint.tlog_path).resolve()}")
         if self.video is not None:
             for kind, sdp in self.video.sdp_paths.items():
                 parts.append(f"{kind} rtp sdp {sdp.resolve()}")
@@ -238,6 +242,8 @@ class SitlApp:
         stats["mavlink"] = self.endpoint.stats
         if self.dashboard is not None:
             stats["dashboard"] = self.dashboard.stats()
+        if self.endpoint.tlog_path:
+            stats["tlog"] = str(Path(self.endpoint.tlog_path).resolve())
         print(f"viva-sitl stopped: {json.dumps(stats, default=str)}", file=sys.stderr, flush=True)
 
 
@@ -272,7 +278,13 @@ def config_from_args(args: argparse.Namespace) -> SimConfig:
         "gcs_remote_port": args.gcs_port,
         "api_local_port": args.api_local_port,
         "gcs_local_port": args.gcs_local_port,
+        "tlog_path": getattr(args, "tlog", None),
+        "signing_key": getattr(args, "signing_key", None),
     }
+    if getattr(args, "no_tlog", False):
+        mav = dataclasses.replace(mav, tlog=False, tlog_path=None)
+    elif getattr(args, "tlog", None):
+        mav = dataclasses.replace(mav, tlog=True)
     mav = dataclasses.replace(mav, **{k: v for k, v in mav_updates.items() if v is not None})
     video = cfg.video.with_instance(mav.instance)
     video_updates = {
@@ -298,7 +310,11 @@ def dashboard_config_from_args(args: argparse.Namespace, instance: int) -> Dashb
 
 
 def run_from_args(args: argparse.Namespace) -> int:
-    cfg = config_from_args(args)
+    try:
+        cfg = config_from_args(args)
+    except ValueError as exc:  # a command-line value a config section refuses (e.g. --instance 500)
+        print(f"viva-sitl: {exc}", file=sys.stderr)
+        return 2
     app = SitlApp(
         cfg,
         video=not args.no_video,
@@ -312,7 +328,16 @@ def run_from_args(args: argparse.Namespace) -> int:
             loop.add_signal_handler(sig, app.stop)
         await app.run(duration_s=args.duration)
 
-    asyncio.run(main())
+    try:
+        asyncio.run(main())
+    except EndpointStartError as exc:  # one line naming the port (or the tlog), no traceback
+        print(f"viva-sitl: {exc.strerror}", file=sys.stderr)
+        return 2
+    except ValueError as exc:
+        if "already in use" not in str(exc):
+            raise
+        print(f"viva-sitl: {exc} (run with --instance N, N = 1, 2, ...)", file=sys.stderr)
+        return 2
     return 0
 
 

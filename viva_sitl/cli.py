@@ -95,10 +95,19 @@ def build_parser() -> argparse.ArgumentParser:
         "set, else the footage's geo-reference, else PX4's 47.397742,8.545594,488)",
     )  # fmt: skip
     _footage_scale_flags(run)
-    run.add_argument("--speed", type=positive_float, help="sim seconds per wall second (default 1)")
+    run.add_argument(
+        "--speed",
+        type=positive_float,
+        help="sim seconds per wall second (default 1); MAVLink rates and timers are per sim second, as PX4 lockstep",
+    )
     run.add_argument("--seed", type=int, help="random seed (disturbances, sensor noise)")
-    run.add_argument("--duration", type=positive_float, help="stop after this many wall seconds")
-    run.add_argument("--instance", type=int, help="offset every port and the sysid, as PX4 SITL -i N")
+    run.add_argument("--duration", type=positive_float, help="stop after this many wall-clock seconds")
+    run.add_argument(
+        "--instance",
+        type=int,
+        help="vehicle N (0..200), as PX4 SITL -i N: sysid 1+N, API ports 14540+N (remote) and 14580+N (local), "
+        "GCS local port 18570+N (the GCS remote stays 14550), RTP video 5600+4N, frame socket 5700+N",
+    )
     run.add_argument("--listen", help="address to bind (default 127.0.0.1)")
     run.add_argument("--api-port", type=_port, help="remote API/offboard port (default 14540+instance)")
     run.add_argument("--gcs-port", type=_port, help="remote ground-station port (default 14550)")
@@ -108,15 +117,40 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument(
         "--gcs-local-port", type=_port, help="local port of the GCS link (default 18570+instance)"
     )
-    run.add_argument("--video-port", type=_port, help="H.264 RTP port (default 5600+instance)")
-    run.add_argument("--mjpeg-port", type=_port, help="also stream MJPEG over RTP to this port")
+    run.add_argument(
+        "--video-port",
+        type=_port,
+        help="UDP port the H.264 RTP stream goes to (RTCP on port+1; default 5600+4*instance, used as given)",
+    )
+    run.add_argument(
+        "--mjpeg-port", type=_port, help="also stream MJPEG over RTP to this UDP port (used as given)"
+    )
     run.add_argument(
         "--frame-socket",
         help="ZeroMQ endpoint of the frame-and-pose socket (default tcp://127.0.0.1:5700+instance)",
     )
     run.add_argument("--record", help="record the VAC stream to this video file")
     run.add_argument(
-        "--no-video", action="store_true", help="no rendering and no video outputs (MAVLink only)"
+        "--no-video",
+        action="store_true",
+        help="no rendering, no video outputs and no camera component (MAVLink autopilot only)",
+    )
+    run.add_argument(
+        "--run-dir",
+        help="where the SDP files, captures and telemetry.tlog go (default ./runs/<YYYYmmdd-HHMMSS>)",
+    )
+    tlog = run.add_mutually_exclusive_group()
+    tlog.add_argument(
+        "--tlog",
+        metavar="PATH",
+        help="record every MAVLink packet sent and received to this .tlog (default: <run-dir>/telemetry.tlog)",
+    )
+    tlog.add_argument("--no-tlog", action="store_true", help="do not record a .tlog")
+    run.add_argument(
+        "--signing-key",
+        metavar="KEY",
+        help="MAVLink 2 signing key (64 hex digits, or a passphrase: its SHA-256): outgoing messages are signed "
+        "and unsigned ones rejected, as PX4 with MAV_SIGN_CFG=1 (a GCS may also set the key with SETUP_SIGNING)",
     )
     run.add_argument(
         "--dashboard-port",
@@ -124,7 +158,6 @@ def build_parser() -> argparse.ArgumentParser:
         help="web dashboard port (default 8080+instance; when busy a free port is used; 0 = any free port)",
     )
     run.add_argument("--no-dashboard", action="store_true", help="do not serve the web dashboard")
-    run.add_argument("--run-dir", help="where the SDP file, captures and logs go (default ./runs/<time>)")
 
     render = sub.add_parser("render", help="render one VAC frame at a pose")
     render.add_argument("--footage", help="catalog name or path (default: synthetic)")
@@ -138,7 +171,11 @@ def build_parser() -> argparse.ArgumentParser:
     render.add_argument("-o", "--output", required=True, help="output image (png/jpg)")
     _footage_scale_flags(render)
 
-    footage = sub.add_parser("footage", help="footage catalog: list | info | get | ingest", add_help=False)
+    footage = sub.add_parser(
+        "footage",
+        help="footage catalog and ground truth: list | info | get | ingest | show | annotate",
+        add_help=False,
+    )
     footage.add_argument("rest", nargs=argparse.REMAINDER)
     return parser
 

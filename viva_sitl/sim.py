@@ -13,6 +13,8 @@ VAC will read (its footprint's bounding box at the chosen pyramid level, plus a 
 and builds the lower pyramid level from that part only; the image is bit-identical to rendering from the fully
 converted frame (tests/test_sim_speed_paths.py). `prefetch=True` also decodes the next footage frame on a
 background thread while the caller steps and renders. `footage_frame` still returns the whole converted frame.
+Over a tile cache (`viva_sitl.footage.tiles.TileSource`, from `viva-sitl footage ingest --tiles`) the same plan
+decodes only the tiles under the footprint at the level(s) the renderer reads (two with trilinear blending).
 """
 
 from __future__ import annotations
@@ -41,6 +43,7 @@ from viva_sitl.dynamics import EavCommand, EavParams, EavState, step
 from viva_sitl.footage import FootageSource, open_footage
 from viva_sitl.footage.source import VideoSource
 from viva_sitl.footage.synthetic import SyntheticField
+from viva_sitl.footage.tiles import TileSource
 from viva_sitl.frame import FrameMeta, RenderedFrame
 from viva_sitl.geo import GeoOrigin
 
@@ -95,12 +98,17 @@ class Simulator:
         self._intrinsics_k: tuple[tuple[float, float, float], ...] = ()
         self._cam_pos_body_m = (0.0, 0.0, 0.0)
         self._region: RegionPyramid | None = None
+        self._plan_quad = np.zeros((0, 2))  # the last plan's footprint corners (level-0 px)
         self._footage_levels = footage_levels
         # footage level the last region render decoded (what prefetch decodes next)
         self._source_level_used = 0
         self.region_renders = 0  # statistics: renders served by the region path / by the whole frame
         self.full_renders = 0
-        if region_render and isinstance(self.footage, VideoSource) and not self.camera.has_distortion:
+        if (
+            region_render
+            and isinstance(self.footage, VideoSource | TileSource)
+            and not self.camera.has_distortion
+        ):
             w, h = self.footage.frame_size_px
             self._region = RegionPyramid(w, h)
         self._prefetcher: ThreadPoolExecutor | None = None
@@ -188,11 +196,14 @@ class Simulator:
             self._pyramid_source = None
         return index, self._pyramid
 
-    def _plan_region(self, s: EavState, region: RegionPyramid) -> tuple[int, int, int, int, int] | None:
-        """(level, x0, y0, x1, y1): the pyramid level the renderer will warp from at `s` and the level-0 region it
-        will read (bounding box of the VAC's corner pixels mapped to the footage, plus REGION_MARGIN_PX at that
-        level, aligned to 2^level, clipped to the frame; empty when the view misses
-        the frame). None when the view is unbounded (horizon in view) or the level cannot be built from a region.
+    def _plan_region(
+        self, s: EavState, region: RegionPyramid, exact: bool = True
+    ) -> tuple[int, bool, int, int, int, int] | None:
+        """(level, blend, x0, y0, x1, y1): the pyramid level the renderer will warp from at `s`, whether it also
+        reads level + 1 (trilinear blend), and the level-0 region it will read (bounding box of the VAC's corner
+        pixels mapped to the footage, plus REGION_MARGIN_PX at the coarser level read, aligned to 2^level, clipped
+        to the frame; empty when the view misses the frame). None when the view is unbounded (horizon in view) or,
+        with `exact`, the level(s) cannot be built from a region by exact halvings.
 
         Repeats the renderer's own homography and level choice (same operations, so the same numbers);
         `render` checks the level it actually used and falls back to the whole frame if they ever disagree.
@@ -207,42 +218,49 @@ class Simulator:
         h_src2i = h_f2i @ np.linalg.inv(geom_to_src)
         vac_to_src = np.linalg.inv(h_src2i)
         vac_to_src /= np.max(np.abs(vac_to_src))
-        level, _ = self.renderer.choose_level(vac_to_src, region.max_level)
-        if not region.exact_level(level):
+        level, blend_w, _ = self.renderer.choose_lod(vac_to_src, region.max_level)
+        blend = blend_w > 0.0
+        if exact and not (region.exact_level(level) and (not blend or region.exact_level(level + 1))):
             return None
         wv, hv = cam.width_px - 1.0, cam.height_px - 1.0
         corners = np.array([[0.0, 0.0, 1.0], [wv, 0.0, 1.0], [wv, hv, 1.0], [0.0, hv, 1.0]]) @ vac_to_src.T
         if np.any(corners[:, 2] <= _W_EPS) or not np.all(np.isfinite(corners)):
             return None  # the footprint is unbounded: the whole frame may be read
+        self._plan_quad = corners[:, :2] / corners[:, 2:]  # level-0 footprint of the VAC's corner pixels
         # level-0 pixel -> level-L pixel (edges aligned): u_L = (u_0 + 0.5) / 2^L - 0.5
         scale = 1.0 / (1 << level)
         u = (corners[:, 0] / corners[:, 2] + 0.5) * scale - 0.5
         v = (corners[:, 1] / corners[:, 2] + 0.5) * scale - 0.5
         lw, lh = region.sizes_px[level]
-        j0 = max(0, min(lw, math.floor(float(u.min())) - REGION_MARGIN_PX))
-        j1 = max(0, min(lw, math.floor(float(u.max())) + 1 + REGION_MARGIN_PX))
-        i0 = max(0, min(lh, math.floor(float(v.min())) - REGION_MARGIN_PX))
-        i1 = max(0, min(lh, math.floor(float(v.max())) + 1 + REGION_MARGIN_PX))
-        return level, j0 << level, i0 << level, min(w0, j1 << level), min(h0, i1 << level)
+        margin = REGION_MARGIN_PX << int(blend)  # REGION_MARGIN_PX at level + 1 too
+        j0 = max(0, min(lw, math.floor(float(u.min())) - margin))
+        j1 = max(0, min(lw, math.floor(float(u.max())) + 1 + margin))
+        i0 = max(0, min(lh, math.floor(float(v.min())) - margin))
+        i1 = max(0, min(lh, math.floor(float(v.max())) + 1 + margin))
+        return level, blend, j0 << level, i0 << level, min(w0, j1 << level), min(h0, i1 << level)
 
     def _region_pyramid(self, index: int, s: EavState) -> tuple[RegionPyramid, int] | None:
         """The region pyramid filled for rendering footage frame `index` at `s`, and its level; None: use the whole
         frame."""
         region = self._region
-        if region is None or not isinstance(self.footage, VideoSource):
+        if region is None:
             return None
         if self._pyramid_index == index and self._pyramid is not None:
             return None  # the whole frame is already converted (footage_frame was called): reuse it
+        if isinstance(self.footage, TileSource):
+            return self._tile_region(index, s, region)
+        if not isinstance(self.footage, VideoSource):
+            return None
         plan = self._plan_region(s, region)
         if plan is None:
             return None
-        level, x0, y0, x1, y1 = plan
+        level, blend, x0, y0, x1, y1 = plan
         src_level = self._source_level(level, region)
-        # align to the 2x2 chroma grid of the decoded frame (level src_level) and to 2^level
-        a = max(1 << level, 2 << src_level)
+        # align to the 2x2 chroma grid of the decoded frame (level src_level) and to 2^level (2^(level+1) to blend)
+        a = max(1 << (level + int(blend)), 2 << src_level)
         x0, y0 = x0 // a * a, y0 // a * a
         x1, y1 = min(region.width_px, -(-x1 // a) * a), min(region.height_px, -(-y1 // a) * a)
-        key = (index, level, src_level, x0, y0, x1, y1)
+        key = (index, level, blend, src_level, x0, y0, x1, y1)
         if region.key == key:
             return region, level
         region.clear()
@@ -253,9 +271,36 @@ class Simulator:
             if img is None:  # not a 4:2:0 stream: never try again
                 self._region = None
                 return None
-            region.fill(level, x0, y0, img, source_level=src_level)
+            region.fill(level, x0, y0, img, source_level=src_level, next_level=blend)
         region.key = key
         self._source_level_used = src_level
+        return region, level
+
+    def _tile_region(
+        self, index: int, s: EavState, region: RegionPyramid
+    ) -> tuple[RegionPyramid, int] | None:
+        """The region pyramid filled from the tile cache: level (and level + 1 to blend) pixels under the plan."""
+        assert isinstance(self.footage, TileSource)
+        plan = self._plan_region(s, region, exact=False)
+        if plan is None:
+            return None
+        level, blend, x0, y0, x1, y1 = plan
+        key = (index, level, blend, x0, y0, x1, y1)
+        if region.key == key:
+            return region, level
+        region.clear()
+        if x1 > x0 and y1 > y0:
+            for lv in (level, level + 1) if blend else (level,):
+                lw, lh = region.sizes_px[lv]
+                lx0, ly0 = x0 >> lv, y0 >> lv
+                lx1, ly1 = min(lw, -(-x1 >> lv)), min(lh, -(-y1 >> lv))
+                if lx1 > lx0 and ly1 > ly0:  # decoded tiles copied straight into the level's buffer
+                    out = region.level_buffer(lv, lx0, ly0, lx1, ly1)
+                    # only the tiles near the footprint polygon (a yawed view covers ~half its bounding box)
+                    quad = (self._plan_quad + 0.5) / (1 << lv) - 0.5
+                    self.footage.region(index, lv, lx0, ly0, lx1, ly1, out, quad, float(REGION_MARGIN_PX + 1))
+                    region.mark_filled(lv)
+        region.key = key
         return region, level
 
     def _source_level(self, level: int, region: RegionPyramid) -> int:

@@ -5,8 +5,8 @@ Public API:
     Mount                                   FIXED (rigid on the body, default) | GIMBAL (roll/pitch stabilised)
     CameraParams(width_px=640, height_px=480, hfov_deg=82.1, vfov_deg=None, mount=Mount.FIXED,
                  mount_roll_deg=0, mount_pitch_deg=0, mount_yaw_deg=0, cam_pos_body_m=(0, 0, 0),
-                 fill_bgr=(255, 0, 255), antialias=True, lod_bias=0, motion_blur=False, exposure_s=0.01,
-                 noise_std=0, k1=0, k2=0)   frozen config ([camera] table)
+                 fill_bgr=(255, 0, 255), antialias=True, lod_bias=0, trilinear=True, motion_blur=False,
+                 exposure_s=0.01, noise_std=0, k1=0, k2=0)   frozen config ([camera] table)
     DEFAULT_FILL_BGR                        (255, 0, 255) magenta: pixels that see no footage
 
     camera_intrinsics(params) -> K (3, 3)
@@ -22,7 +22,7 @@ Public API:
     build_pyramid(image_bgr, levels) -> [level0, level1, ...]      (2x box-filter mip-map, INTER_AREA)
     LazyPyramid(image_bgr).level(l)                                 (builds levels on first use, thread-safe)
     Renderer(params, geometry).render(pyramid, pos_ned_m, att_rpy_rad, vel_ned_m_s=None, rng=None) -> RenderResult
-    RenderResult(image_bgr, coverage, homography, pyramid_level, footage_px_per_vac_px, cam_rot_body)
+    RenderResult(image_bgr, coverage, homography, pyramid_level, footage_px_per_vac_px, cam_rot_body, lod_blend)
     render_view(source_image_bgr, geometry, params, pos_ned_m, att_rpy_rad) -> image_bgr
 
 Conventions: NED world (ground z = 0, vehicle z < 0), FRD body, attitude (roll, pitch, yaw) rad body->NED (ZYX);

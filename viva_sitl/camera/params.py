@@ -40,6 +40,7 @@ class CameraParams:
     fill_bgr: tuple[int, int, int] = DEFAULT_FILL_BGR  # colour of VAC pixels that see no footage
     antialias: bool = True  # False: always warp the full-resolution frame (aliases; for comparisons)
     lod_bias: float = 0.0  # added to log2(footage px per VAC px) before choosing the pyramid level
+    trilinear: bool = True  # blend the two nearest pyramid levels (False: nearest-below level only)
     motion_blur: bool = False  # blur along the image-projected velocity over the exposure
     exposure_s: float = 0.01  # exposure time used by motion_blur (s)
     noise_std: float = 0.0  # Gaussian sensor noise, standard deviation in 8-bit levels (needs a Generator)

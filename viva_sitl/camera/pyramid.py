@@ -118,6 +118,11 @@ class RegionPyramid(Sequence[U8]):
     region is aligned to 2^level level-0 pixels and every halving is exact, so box averages of the region equal those
     of the whole frame); outside it, and at every other level, the content is unspecified (zero or stale): read
     `filled_level` and `region_px` before trusting a pixel.
+
+    With trilinear anti-aliasing the renderer also reads level `filled_level + 1`: `fill(..., next_level=True)`
+    fills its matching region too (`filled_levels` lists every level holding data). `fill_level` pastes pixels of
+    one level directly (from a tile cache that stores every level, see `viva_sitl.footage.tiles`), with no
+    exact-halving constraint.
     """
 
     def __init__(self, width_px: int, height_px: int, channels: int = 3) -> None:
@@ -135,6 +140,7 @@ class RegionPyramid(Sequence[U8]):
         self._stubs: list[U8] = [np.broadcast_to(zero, (h, w, channels)) for w, h in self.sizes_px]
         self._buffers: dict[int, U8] = {}
         self.filled_level = -1
+        self.filled_levels: set[int] = set()
         # level-0 x0, y0, x1, y1 of the filled region
         self.region_px: tuple[int, int, int, int] = (0, 0, 0, 0)
         self.key: object = None  # the caller's tag of what is filled (e.g. (frame index, level, region))
@@ -155,15 +161,52 @@ class RegionPyramid(Sequence[U8]):
     def clear(self) -> None:
         """Forget the filled region (every level reads as unspecified)."""
         self.filled_level, self.region_px, self.key = -1, (0, 0, 0, 0), None
+        self.filled_levels = set()
 
-    def fill(self, level: int, x0: int, y0: int, region_bgr: U8, source_level: int = 0) -> None:
+    def _buffer(self, level: int) -> U8:
+        buf = self._buffers.get(level)
+        if buf is None:
+            lw, lh = self.sizes_px[level]
+            buf = self._buffers[level] = np.zeros((lh, lw, self.channels), np.uint8)
+        return buf
+
+    def level_buffer(self, level: int, lx0: int, ly0: int, lx1: int, ly1: int) -> U8:
+        """A writable view of level `level` pixels [ly0:ly1, lx0:lx1] to fill in place; `mark_filled` it after."""
+        lw, lh = self.sizes_px[level]
+        if not (0 <= lx0 < lx1 <= lw and 0 <= ly0 < ly1 <= lh):
+            raise ValueError(f"({lx0}, {ly0})-({lx1}, {ly1}) is outside level {level} ({lw}x{lh})")
+        return self._buffer(level)[ly0:ly1, lx0:lx1]
+
+    def mark_filled(self, level: int) -> None:
+        """Level `level` now holds data (filled through `level_buffer`)."""
+        if self.filled_level < 0 or level < self.filled_level:
+            self.filled_level = level
+        self.filled_levels.add(level)
+
+    def fill_level(self, level: int, lx0: int, ly0: int, pixels_bgr: U8) -> None:
+        """Paste `pixels_bgr`, pixels of level `level` itself (e.g. from tiles), at level pixel (lx0, ly0)."""
+        check_image(pixels_bgr)
+        if not 0 <= level <= self.max_level:
+            raise ValueError(f"pyramid level {level} out of 0..{self.max_level}")
+        lw, lh = self.sizes_px[level]
+        h, w = pixels_bgr.shape[:2]
+        if lx0 < 0 or ly0 < 0 or lx0 + w > lw or ly0 + h > lh or pixels_bgr.shape[2:] != (self.channels,):
+            raise ValueError(f"{w}x{h} pixels at ({lx0}, {ly0}) do not fit level {level} ({lw}x{lh})")
+        self._buffer(level)[ly0 : ly0 + h, lx0 : lx0 + w] = pixels_bgr
+        if self.filled_level < 0 or level < self.filled_level:
+            self.filled_level = level
+        self.filled_levels.add(level)
+
+    def fill(
+        self, level: int, x0: int, y0: int, region_bgr: U8, source_level: int = 0, next_level: bool = False
+    ) -> None:
         """Fill level `level` from `region_bgr`: pixels of level `source_level` (<= level) covering level-0 pixels
         [y0:y1, x0:x1] (x1 = x0 + w * 2^source_level, or the frame's edge; likewise y1).
 
         x0, y0, x1 and y1 must be multiples of 2^level (x1, y1 may instead end at the frame's edge), and the frame's
         size a multiple of 2^level (`exact_level`), so that each halving of the region is exact. `source_level` > 0:
         the region comes from a reduced copy of the frame (e.g. the ingest cache's half-resolution video) of the
-        size of that level.
+        size of that level. `next_level`: also fill level + 1 (one more halving; the same constraints at level + 1).
         """
         check_image(region_bgr)
         if not 0 <= source_level <= level:
@@ -185,16 +228,32 @@ class RegionPyramid(Sequence[U8]):
             raise ValueError(f"region ({x0}, {y0})-({x1}, {y1}) is not aligned to {step} px inside the frame")
         if (x1 % step and x1 != self.width_px) or (y1 % step and y1 != self.height_px):
             raise ValueError(f"region ({x0}, {y0})-({x1}, {y1}) does not end on a {step} px boundary")
+        if next_level:
+            nstep = step << 1
+            if not self.exact_level(level + 1):
+                raise ValueError(
+                    f"level {level + 1} of a {self.width_px}x{self.height_px} frame is not an exact halving"
+                )
+            if (
+                x0 % nstep
+                or y0 % nstep
+                or (x1 % nstep and x1 != self.width_px)
+                or (y1 % nstep and y1 != self.height_px)
+            ):
+                raise ValueError(f"region ({x0}, {y0})-({x1}, {y1}) is not aligned to {nstep} px")
         img = region_bgr
         for _ in range(level - source_level):
             img = half_size(img)
-        buf = self._buffers.get(level)
-        if buf is None:
-            lw, lh = self.sizes_px[level]
-            buf = self._buffers[level] = np.zeros((lh, lw, self.channels), np.uint8)
         lx, ly = x0 >> level, y0 >> level
-        buf[ly : ly + img.shape[0], lx : lx + img.shape[1]] = img
+        self._buffer(level)[ly : ly + img.shape[0], lx : lx + img.shape[1]] = img
         self.filled_level = level
+        self.filled_levels = {level}
+        if next_level:
+            img = half_size(img)
+            self._buffer(level + 1)[
+                ly >> 1 : (ly >> 1) + img.shape[0], lx >> 1 : (lx >> 1) + img.shape[1]
+            ] = img
+            self.filled_levels.add(level + 1)
         self.region_px = (x0, y0, x1, y1)
 
     def __len__(self) -> int:
@@ -211,6 +270,6 @@ class RegionPyramid(Sequence[U8]):
             return [self[i] for i in range(*level.indices(len(self)))]
         if not 0 <= level <= self.max_level:
             raise IndexError(f"pyramid level {level} out of 0..{self.max_level}")
-        if level == self.filled_level:
+        if level in self.filled_levels:
             return self._buffers[level]
         return self._stubs[level]

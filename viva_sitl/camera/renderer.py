@@ -3,7 +3,14 @@
 Anti-aliasing: the pyramid level is chosen from the footprint, i.e. the number of footage pixels one VAC pixel spans
 at the image centre (the longer axis of the local Jacobian of the VAC -> footage map, as in mip-mapping). The frame is
 then warped from that level with bilinear interpolation, so each VAC pixel reads about one source pixel and the cost
-per frame depends on the output size, not on the footage resolution. The pyramid is built once per footage frame by
+per frame depends on the output size, not on the footage resolution.
+
+Trilinear (`CameraParams.trilinear`, the default): the level of detail is lod = log2(scale) + lod_bias - 0.5; the
+image is warped from levels floor(lod) and floor(lod) + 1 and blended by the fraction of lod (two warps instead of
+one). Plain mip-mapping (floor(log2 scale)) over-blurs just above a power of two (a bilinear read of a box-filtered
+level spans ~3 level pixels where the footprint spans ~1): on the interchange clip at 4.2 footage px per VAC px it
+scored 32.4 dB against an area-averaged reference, below the plain full-resolution warp; the -0.5 offset with the blend
+is at or above the plain warp at every ratio measured (bench/bench_tiles.py --aa, bench/results_tiles.md). The pyramid is built once per footage frame by
 the caller (`LazyPyramid` builds only the levels actually used).
 
 Pixels whose ray misses the footage (outside it, or at/above the horizon) get `CameraParams.fill_bgr`; the fraction of
@@ -40,6 +47,9 @@ F64 = NDArray[np.float64]
 PyramidLike = LazyPyramid | Sequence[U8] | U8
 
 _W_EPS = 1e-9  # homogeneous w at or below this is treated as a ray at/above the horizon
+# Trilinear: added to log2(scale). 0 (textbook trilinear) scored below the plain warp between levels on the
+# interchange sweep; -0.5 is above it at every ratio (bench/results_tiles.md, section 4)
+TRILINEAR_LOD_OFFSET = -0.5
 
 
 @dataclass(frozen=True)
@@ -50,6 +60,7 @@ class RenderResult:
     pyramid_level: int  # pyramid level warped from (0 = full resolution)
     footage_px_per_vac_px: float  # footprint scale at the image centre that chose the level (nan: none)
     cam_rot_body: F64  # R^b_v actually used (differs from the mount's for a gimbal at non-level attitude)
+    lod_blend: float = 0.0  # trilinear weight of level pyramid_level + 1 (0: that level alone)
 
 
 def _level_image(pyramid: PyramidLike, level: int) -> tuple[U8, int]:
@@ -108,9 +119,17 @@ class Renderer:
         return level_from_source(gw, gh, iw, ih)  # pixel edges stay aligned
 
     def choose_level(self, vac_to_src: F64, max_level: int) -> tuple[int, float]:
-        """Pyramid level for the VAC -> level-0 source map: floor(log2(scale at the centre) + lod_bias), clamped.
+        """(finer pyramid level the render reads, scale); see `choose_lod`."""
+        level, _, rho = self.choose_lod(vac_to_src, max_level)
+        return level, rho
 
-        When the centre ray misses the ground (steep tilt), the smallest scale over a 5x5 grid of valid pixels.
+    def choose_lod(self, vac_to_src: F64, max_level: int) -> tuple[int, float, float]:
+        """(level, blend, scale) for the VAC -> level-0 source map, scale = footage px per VAC px at the centre.
+
+        Without trilinear: level = floor(log2(scale) + lod_bias), clamped, blend 0. With it: lod = log2(scale) +
+        lod_bias + TRILINEAR_LOD_OFFSET, level = floor(lod) clamped to 0..max_level, blend = the weight of level + 1
+        (lod - level, 0 below level 0 and at the deepest level). When the centre ray misses the ground (steep tilt),
+        the scale is the smallest over a 5x5 grid of valid pixels.
         """
         p = self.params
         cu, cv = (p.width_px - 1) / 2.0, (p.height_px - 1) / 2.0
@@ -124,9 +143,19 @@ class Renderer:
             finite = [s for s in scales if math.isfinite(s)]
             rho = min(finite) if finite else math.nan
         if not p.antialias or not math.isfinite(rho) or rho <= 0.0:
-            return 0, rho
-        level = math.floor(math.log2(rho) + p.lod_bias)
-        return max(0, min(level, max_level)), rho
+            return 0, 0.0, rho
+        if not p.trilinear:
+            level = math.floor(math.log2(rho) + p.lod_bias)
+            return max(0, min(level, max_level)), 0.0, rho
+        lod = math.log2(rho) + p.lod_bias + TRILINEAR_LOD_OFFSET
+        if lod <= 0.0:
+            return 0, 0.0, rho
+        level = math.floor(lod)
+        if level >= max_level:
+            return max_level, 0.0, rho
+        blend = lod - level
+        # a blend this small changes no pixel by a level: one warp
+        return level, (blend if blend >= 1.0 / 512.0 else 0.0), rho
 
     def coverage(self, vac_to_src: F64, src_w: int, src_h: int) -> float:
         """Exact fraction of the (undistorted) VAC image whose rays hit the footage rectangle in front of the camera.
@@ -179,27 +208,41 @@ class Renderer:
             return RenderResult(image, 0.0, h_f2i, 0, math.nan, cam_rot_body)
 
         max_level = self._max_level(pyramid)
-        level, rho = self.choose_level(vac_to_src, max_level)
+        level, blend, rho = self.choose_lod(vac_to_src, max_level)
         src, level = _level_image(pyramid, level)
-        lw, lh = int(src.shape[1]), int(src.shape[0])
-        vac_to_level = level_from_source(src_w, src_h, lw, lh) @ vac_to_src
-
+        image, cov = self._warp_level(src, src_w, src_h, vac_to_src)
+        if blend > 0.0:
+            src1, level1 = _level_image(pyramid, level + 1)
+            if level1 == level + 1:
+                coarse, _ = self._warp_level(src1, src_w, src_h, vac_to_src)
+                image = np.asarray(cv2.addWeighted(image, 1.0 - blend, coarse, blend, 0.0), dtype=np.uint8)
+            else:
+                blend = 0.0
         if self._und_map is None:
-            warped = cv2.warpPerspective(
-                src, vac_to_level, (p.width_px, p.height_px),
-                flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
-                borderMode=cv2.BORDER_CONSTANT, borderValue=self._fill,
-            )  # fmt: skip
-            image = np.asarray(warped, dtype=np.uint8)
             self._fill_behind(image, vac_to_src)
         else:
-            image, coverage = self._remap_distorted(src, vac_to_level)
+            coverage = cov
 
         if p.motion_blur and vel is not None and p.exposure_s > 0.0:
             image = apply_motion_blur(image, self._blur_shift_px(pos, att, vel))
         if p.noise_std > 0.0 and rng is not None:
             image = add_sensor_noise(image, p.noise_std, rng)
-        return RenderResult(np.asarray(image, dtype=np.uint8), coverage, h_f2i, level, rho, cam_rot_body)
+        return RenderResult(
+            np.asarray(image, dtype=np.uint8), coverage, h_f2i, level, rho, cam_rot_body, float(blend)
+        )
+
+    def _warp_level(self, src: U8, src_w: int, src_h: int, vac_to_src: F64) -> tuple[U8, float]:
+        """The VAC image warped (bilinear) from one pyramid level, and its coverage with lens distortion (else -1)."""
+        p = self.params
+        vac_to_level = level_from_source(src_w, src_h, int(src.shape[1]), int(src.shape[0])) @ vac_to_src
+        if self._und_map is not None:
+            return self._remap_distorted(src, vac_to_level)
+        warped = cv2.warpPerspective(
+            src, vac_to_level, (p.width_px, p.height_px),
+            flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
+            borderMode=cv2.BORDER_CONSTANT, borderValue=self._fill,
+        )  # fmt: skip
+        return np.asarray(warped, dtype=np.uint8), -1.0
 
     @staticmethod
     def _max_level(pyramid: PyramidLike) -> int:

@@ -8,9 +8,10 @@ import sys
 from pathlib import Path
 
 from viva_sitl.cliargs import positive_float
+from viva_sitl.footage import tiles
 from viva_sitl.footage.catalog import cached_record_files, download_catalog
 from viva_sitl.footage.errors import FootageError
-from viva_sitl.footage.ingest import ingest
+from viva_sitl.footage.ingest import ingest, ingest_tiles
 from viva_sitl.footage.loader import (
     DOWNLOAD_SUBDIR,
     INGEST_METADATA,
@@ -85,6 +86,20 @@ def build_parser() -> argparse.ArgumentParser:
     ing.add_argument("--crf", type=int, default=18, help="x264 quality (lower = better, bigger)")
     ing.add_argument("--max-frames", type=int, help="ingest only the first N frames")
     ing.add_argument("--no-progress", action="store_true", help="no progress bar")
+    ing.add_argument(
+        "--tiles", action="store_true",
+        help="build a tiled multi-resolution cache instead (render cost follows the view, not the footage size; "
+        "resumable: rerun after an interruption)",
+    )  # fmt: skip
+    ing.add_argument("--tile-codec", choices=tiles.CODECS, default=tiles.DEFAULT_CODEC, help="with --tiles")
+    ing.add_argument(
+        "--tile-quality", type=int, default=tiles.DEFAULT_JPEG_QUALITY, help="jpeg quality 1-100"
+    )
+    ing.add_argument("--tile-px", type=int, default=tiles.DEFAULT_TILE_PX, help="tile size, px")
+    ing.add_argument(
+        "--max-size", type=positive_float, metavar="MIB",
+        help="with --tiles: size bound on disk (jpeg: lower quality to fit, else refuse)",
+    )  # fmt: skip
     show = sub.add_parser(
         "show", parents=[common], help="overview PNG: the frame at --time with the risk map and the objects"
     )
@@ -193,6 +208,20 @@ def _cmd_get(args: argparse.Namespace, config_dir: Path, shared_dir: Path, cache
 
 
 def _cmd_ingest(args: argparse.Namespace, config_dir: Path, shared_dir: Path, cache_dir: Path) -> int:
+    if args.tiles:
+        res = ingest_tiles(
+            args.footage, out_dir=args.out, cache_dir=cache_dir, config_dir=config_dir, shared_dir=shared_dir,
+            name=args.name, codec=args.tile_codec, quality=args.tile_quality, tile_px=args.tile_px,
+            max_bytes=None if args.max_size is None else int(args.max_size * 2**20),
+            show_progress=not args.no_progress, max_frames=args.max_frames,
+        )  # fmt: skip
+        q = f" quality {res.quality}" if res.codec == "jpeg" else ""
+        again = f", resumed after frame {res.resumed_from}" if res.resumed_from else ""
+        print(
+            f"tiled {res.frames} frames into {res.folder} ({_human(res.disk_bytes)}, {res.codec}{q}{again}); "
+            f"open it with --footage {res.folder}"
+        )
+        return 0
     out = ingest(
         args.footage, out_dir=args.out, cache_dir=cache_dir, config_dir=config_dir, shared_dir=shared_dir,
         levels=args.levels, crf=args.crf, name=args.name, show_progress=not args.no_progress,

@@ -7,6 +7,13 @@ Output folder (default `<cache>/ingest/<name>/`):
     footage.toml  the source's metadata with the geometry written out explicitly (GSD, altitude, heading, origin),
                   so `open_footage(folder)` or `open_footage("<name>")` (name lookup in the cache) use the copy.
 The folder is built under a temporary name and renamed when complete: an interrupted ingest leaves no cache entry.
+
+`ingest_tiles` (`viva-sitl footage ingest --tiles`) builds instead a tiled multi-resolution cache
+(`viva_sitl.footage.tiles`, default folder `<cache>/ingest/<name>-tiles/`): a render then decodes only the tiles
+under the VAC's footprint, so its cost follows the VAC's output size, not the footage's resolution. It is built in
+place and resumable (an interrupted run continues where it stopped); footage.toml is written last.
+Why not the default: the tile cache is ~3-10x bigger on disk than the H.264 copies and slower to build; it pays for
+4K/8K footage and training loops, not for a quick look at 1080p footage.
 """
 
 from __future__ import annotations
@@ -22,12 +29,14 @@ from typing import Any, TextIO
 import av
 from tqdm import tqdm
 
+from viva_sitl.footage import tiles
 from viva_sitl.footage.errors import FootageError
 from viva_sitl.footage.geometry import FootageGeometry
 from viva_sitl.footage.loader import (
     INGEST_METADATA,
     INGEST_SUBDIR,
     geometry_for,
+    open_footage,
     resolve_metadata,
     with_scale_sources,
 )
@@ -134,7 +143,9 @@ def ingest(
                 oc.close()
         if count == 0:
             raise FootageError(f"{src_path}: no frame could be decoded")
-        _write_metadata(tmp / INGEST_METADATA, meta, geometry, entry, float(rate), levels, src_path, count)
+        _write_metadata(
+            tmp / INGEST_METADATA, meta, geometry, entry, float(rate), levels, src_path, count, LEVEL_FILES[0]
+        )
         if dest.exists():
             shutil.rmtree(dest)
         tmp.rename(dest)
@@ -153,13 +164,14 @@ def _write_metadata(
     levels: int,
     src: Path,
     frames: int,
+    video: str,
 ) -> None:
     lines = [
         f"# written by `viva-sitl footage ingest` from {src} ({frames} frames)",
         f"name = {_toml_value(name)}",
-        f"title = {_toml_value((meta.title or meta.name) + ' (ingest cache)')}",
+        f"title = {_toml_value((meta.title or meta.name) + (' (tile cache)' if video == str(src) else ' (ingest cache)'))}",
         'kind = "video"',
-        f"path = {_toml_value(LEVEL_FILES[0])}",
+        f"path = {_toml_value(video)}",
         f"levels = {_toml_value(list(LEVEL_FILES[1:levels]))}",
         f"fps = {_toml_value(meta.fps or fps)}",
         f"gsd_m_per_px = {_toml_value(geometry.gsd_m_per_px)}",
@@ -190,3 +202,56 @@ def _write_metadata(
     if not all(math.isfinite(v) for v in (geometry.gsd_m_per_px, geometry.recording_altitude_m)):
         raise FootageError("ingest: non-finite geometry")
     path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+
+
+def ingest_tiles(
+    spec: str | Path,
+    *,
+    out_dir: Path | None = None,
+    cache_dir: Path | None = None,
+    config_dir: Path | None = None,
+    shared_dir: Path | None = None,
+    name: str | None = None,
+    codec: str = tiles.DEFAULT_CODEC,
+    quality: int = tiles.DEFAULT_JPEG_QUALITY,
+    tile_px: int = tiles.DEFAULT_TILE_PX,
+    max_bytes: int | None = None,
+    progress_file: TextIO | None = None,
+    show_progress: bool = True,
+    max_frames: int | None = None,
+) -> tiles.TileBuildResult:
+    """Build (or resume) the tile cache of a video or still; returns where it is, its size and codec."""
+    meta = resolve_metadata(spec, shared_dir=shared_dir, config_dir=config_dir, cache_dir=cache_dir)
+    if meta.kind is FootageKind.SYNTHETIC:
+        raise FootageError("the synthetic field needs no tile cache (it is drawn per view)")
+    entry = name or f"{meta.name}-tiles"
+    if not entry or "/" in entry or entry.startswith("."):
+        raise FootageError(f"bad cache name {entry!r}")
+    dest = out_dir if out_dir is not None else (cache_dir or default_cache_dir()) / INGEST_SUBDIR / entry
+    src = open_footage(spec, shared_dir=shared_dir, config_dir=config_dir, cache_dir=cache_dir)
+    if isinstance(src, tiles.TileSource):
+        src.close()
+        raise FootageError(f"{spec} is already a tile cache")
+    with src:
+        n = src.frame_count if max_frames is None else max(1, min(src.frame_count, max_frames))
+        w, h = src.geometry.width_px, src.geometry.height_px
+        src_path = Path(meta.path)
+        st = src_path.stat()
+        (dest / INGEST_METADATA).unlink(missing_ok=True)  # not openable until complete
+        result = tiles.build_tiles(
+            (src.frame(i) for i in range(n)), n, w, h, src.fps, dest, codec=codec, quality=quality,
+            tile_px=tile_px, max_bytes=max_bytes, source_id=f"{src_path.resolve()}:{st.st_size}:{st.st_mtime_ns}",
+            progress_file=progress_file, show_progress=show_progress, desc=f"tiles {meta.name}",
+        )  # fmt: skip
+        _write_metadata(
+            dest / INGEST_METADATA,
+            meta,
+            src.geometry,
+            entry,
+            src.fps,
+            1,
+            src_path,
+            n,
+            str(src_path.resolve()),
+        )
+    return result

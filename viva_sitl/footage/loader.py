@@ -36,6 +36,7 @@ from viva_sitl.footage.paths import default_cache_dir, default_config_dir, defau
 from viva_sitl.footage.source import FootageSource, StillSource, VideoSource
 from viva_sitl.footage.srt import find_srt_sidecar, parse_srt
 from viva_sitl.footage.synthetic import SyntheticField, SyntheticFieldParams, synthetic_metadata
+from viva_sitl.footage.tiles import TileSource, is_tile_cache
 from viva_sitl.geo import GeoOrigin
 
 log = logging.getLogger(__name__)
@@ -184,6 +185,9 @@ def _build(meta: FootageMetadata) -> FootageSource:
             raise FootageError(f"{meta.config_file or 'synthetic'}: bad [synthetic] table: {exc}") from None
         base = synthetic_metadata(params)
         return SyntheticField(params, base.with_overrides(title=meta.title or None, notes=meta.notes or None))
+    if meta.config_file and is_tile_cache(Path(meta.config_file).parent):
+        # a tile cache (`footage ingest --tiles`): served from its tiles, the source video is not needed
+        return TileSource(meta, Path(meta.config_file).parent, lambda w, h: geometry_for(meta, w, h))
     path = Path(meta.path)
     if not path.exists():
         raise FootageError(f"footage {meta.name!r}: file not found: {path}")

@@ -55,6 +55,10 @@ MIN_GRID_SPACING_PX = 10.0
 LABEL_SPACING_MIN_PX = 160.0  # labels at the finest 50/250/1250.. m crossings at least this far apart
 TEXTURE_CELLS_PER_BASE_PX = 8  # texture lattice cell = 8 base pixels (0.8 m at 0.1 m/px)
 WINDOW_MARGIN = 0.25  # a drawn window extends this fraction of the footprint size beyond it on each side
+# Pixels along a window's edge whose values depend on where the window lies (the texture blur's border handling, the
+# renderer's pyramid and interpolation): they never come into view, so a view is a pure function of the pose,
+# whichever window the flight's history left (at 1 m height a window is only a few dozen pixels across).
+WINDOW_EDGE_PX = 16
 
 ToPx = Callable[[float, float], tuple[float, float]]
 
@@ -244,23 +248,15 @@ class _Window:
     background: NDArray[np.uint8]
 
     def margin_left(self, n_lo: float, n_hi: float, e_lo: float, e_hi: float) -> float:
-        """Ground (m) between the footprint and the nearest window edge (negative: outside)."""
+        """Ground (m) between the footprint and the window's edge band (WINDOW_EDGE_PX wide; negative: in or past it)."""
         g = self.geometry
         n0, e0 = g.center_ne_m
         hn, he = g.ground_height_m / 2.0, g.ground_width_m / 2.0
-        return min(n_lo - (n0 - hn), n0 + hn - n_hi, e_lo - (e0 - he), e0 + he - e_hi)
+        edge_m = WINDOW_EDGE_PX * g.gsd_m_per_px
+        return min(n_lo - (n0 - hn), n0 + hn - n_hi, e_lo - (e0 - he), e0 + he - e_hi) - edge_m
 
     def holds(self, level: int, n_lo: float, n_hi: float, e_lo: float, e_hi: float) -> bool:
-        g = self.geometry
-        n0, e0 = g.center_ne_m
-        hn, he = g.ground_height_m / 2.0, g.ground_width_m / 2.0
-        return (
-            level == self.level
-            and n0 - hn <= n_lo
-            and n_hi <= n0 + hn
-            and e0 - he <= e_lo
-            and e_hi <= e0 + he
-        )
+        return level == self.level and self.margin_left(n_lo, n_hi, e_lo, e_hi) >= 0.0
 
 
 class SyntheticField(FootageSource):
@@ -494,7 +490,8 @@ class SyntheticField(FootageSource):
         base = p.gsd_m_per_px
         span = max(n_hi - n_lo, e_hi - e_lo, base)
         lvl_res = math.floor(math.log2(ground_px_m / base)) if ground_px_m > base else 0
-        lvl_cap = max(0, math.ceil(math.log2(span * (1.0 + 2.0 * WINDOW_MARGIN) / (p.window_max_px * base))))
+        usable_px = p.window_max_px - 2 * WINDOW_EDGE_PX - 2  # the edge bands and the even-size rounding
+        lvl_cap = max(0, math.ceil(math.log2(span * (1.0 + 2.0 * WINDOW_MARGIN) / (usable_px * base))))
         level = max(lvl_res, lvl_cap)
         bbox = (n_lo, n_hi, e_lo, e_hi)
         with self._lock:
@@ -524,11 +521,12 @@ class SyntheticField(FootageSource):
         self, level: int, bbox: tuple[float, float, float, float], span: float, shift_ne: tuple[float, float]
     ) -> FootageGeometry:
         """The window for footprint `bbox` (n_lo, n_hi, e_lo, e_hi) at `level`: the footprint plus WINDOW_MARGIN of
-        its size each side, centred on it (moved by `shift_ne`), on the level's pixel grid, at most window_max_px."""
+        its size each side plus the edge band, centred on it (moved by `shift_ne`), on the level's pixel grid, at most
+        window_max_px."""
         p = self.params
         n_lo, n_hi, e_lo, e_hi = bbox
         gsd = p.gsd_m_per_px * (1 << level)
-        grow = WINDOW_MARGIN * span
+        grow = WINDOW_MARGIN * span + WINDOW_EDGE_PX * gsd
         w = min(p.window_max_px, 2 * math.ceil((e_hi - e_lo + 2 * grow) / gsd / 2.0) + 2)
         h = min(p.window_max_px, 2 * math.ceil((n_hi - n_lo + 2 * grow) / gsd / 2.0) + 2)
         cn = round(((n_lo + n_hi) / 2.0 + shift_ne[0]) / gsd) * gsd

@@ -46,7 +46,8 @@ class VehicleLink(Protocol):
     """What the endpoint needs from the vehicle (the lead's app satisfies it).
 
     All attributes are read on the asyncio loop that runs the endpoint; the autopilot is called from that loop too,
-    so the vehicle must step the autopilot on the same loop (or guard it).
+    so the vehicle must step the autopilot on the same loop (or guard it). After every physics step the vehicle
+    calls `MavlinkEndpoint.on_sim_step()`: telemetry, heartbeats and MAVLink timers run on `time_s` (sim time).
     """
 
     @property

@@ -7,6 +7,17 @@ the capture runs on a worker thread (it encodes and writes a file) and CAMERA_IM
 
 For an RTP/UDP stream VIDEO_STREAM_INFORMATION.uri is the port alone ("5600"): QGroundControl builds
 udp://0.0.0.0:<uri> from it (PX4's reference and QGC's VideoManager).
+
+MAVSDK's camera plugin (CameraImpl) asks for VIDEO_STREAM_INFORMATION only from a timer that runs every 20 s and whose
+first run happens when the plugin starts, before it has seen the camera's heartbeat: a client would wait ~20 s for the
+stream URI (and one that checks sooner sees an empty one). VIDEO_STREAM_STATUS, which it requests every 5 s, does
+not count as stream information there. So the camera sends VIDEO_STREAM_INFORMATION right after every
+CAMERA_INFORMATION and VIDEO_STREAM_STATUS it answers, as a camera announcing its streams; MAVSDK takes it unasked.
+CAMERA_IMAGE_CAPTURED requested by index (MAVSDK re-requests captures it missed) answers with that capture.
+
+CAMERA_IMAGE_CAPTURED.q is the camera's attitude in NED, in the gimbal convention of PX4 / MAVLink (identity: the
+optical axis points north, level, image top up; a nadir camera on a level vehicle heading north is pitch -90 deg):
+the vehicle attitude composed with the mount (or gimbal) rotation of the rendered frame.
 """
 
 from __future__ import annotations
@@ -19,10 +30,12 @@ import time
 from collections.abc import Coroutine
 from typing import Any
 
+import numpy as np
 from pymavlink.dialects.v20 import common as mavlink2
 
 from viva_sitl.autopilot.types import CommandResult, Outcome, PayloadAction, Severity
-from viva_sitl.dynamics import quat_from_euler
+from viva_sitl.camera import NADIR_CAM_ROT_BODY
+from viva_sitl.dynamics.rotation import rot_body_to_ned
 from viva_sitl.mavlink.base import (
     CommandRequest,
     Component,
@@ -72,6 +85,37 @@ CAMERA_MESSAGES = {
     M.MAVLINK_MSG_ID_VIDEO_STREAM_STATUS,
 }
 MAX_INTERVAL_CAPTURES = 10_000
+KEEP_CAPTURED_MESSAGES = 1000  # CAMERA_IMAGE_CAPTURED kept for re-requests by index (the latest ones)
+# camera axes (x right, y down, z optical) -> the gimbal frame (x optical, y right, z image-down)
+_GIMBAL_FROM_CAM = np.array([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [1.0, 0.0, 0.0]])
+
+
+def quat_from_rot(r: Any) -> tuple[float, float, float, float]:
+    """(w, x, y, z) unit quaternion of a rotation matrix (Shepperd's method; w >= 0)."""
+    m = np.asarray(r, dtype=np.float64)
+    tr = float(m[0, 0] + m[1, 1] + m[2, 2])
+    if tr > 0.0:
+        k = 2.0 * math.sqrt(1.0 + tr)
+        q = (0.25 * k, (m[2, 1] - m[1, 2]) / k, (m[0, 2] - m[2, 0]) / k, (m[1, 0] - m[0, 1]) / k)
+    elif m[0, 0] > m[1, 1] and m[0, 0] > m[2, 2]:
+        k = 2.0 * math.sqrt(1.0 + m[0, 0] - m[1, 1] - m[2, 2])
+        q = ((m[2, 1] - m[1, 2]) / k, 0.25 * k, (m[0, 1] + m[1, 0]) / k, (m[0, 2] + m[2, 0]) / k)
+    elif m[1, 1] > m[2, 2]:
+        k = 2.0 * math.sqrt(1.0 + m[1, 1] - m[0, 0] - m[2, 2])
+        q = ((m[0, 2] - m[2, 0]) / k, (m[0, 1] + m[1, 0]) / k, 0.25 * k, (m[1, 2] + m[2, 1]) / k)
+    else:
+        k = 2.0 * math.sqrt(1.0 + m[2, 2] - m[0, 0] - m[1, 1])
+        q = ((m[1, 0] - m[0, 1]) / k, (m[0, 2] + m[2, 0]) / k, (m[1, 2] + m[2, 1]) / k, 0.25 * k)
+    w, x, y, z = (float(v) for v in q)
+    n = math.sqrt(w * w + x * x + y * y + z * z)
+    sign = -1.0 if w < 0 else 1.0
+    return (sign * w / n, sign * x / n, sign * y / n, sign * z / n)
+
+
+def camera_quaternion_ned(att_rpy_rad: tuple[float, float, float], cam_rot_body: Any) -> tuple[float, ...]:
+    """The camera's attitude quaternion in NED (gimbal convention) from the vehicle attitude and R^b_v."""
+    r_ned_cam = rot_body_to_ned(*att_rpy_rad) @ np.asarray(cam_rot_body, dtype=np.float64)
+    return quat_from_rot(r_ned_cam @ _GIMBAL_FROM_CAM)
 
 
 def is_camera_command(req: CommandRequest) -> bool:
@@ -92,10 +136,13 @@ class CameraComponent:
         self.statustext = statustext
         self.image_count = 0  # images captured so far (CAMERA_IMAGE_CAPTURED.image_index of the next one)
         self.captures_failed = 0
-        self._interval_task: asyncio.Task[None] | None = None
         self._interval_s = 0.0
+        self._interval_left = 0  # images still to take in the running interval capture (0: none running)
+        self.next_trigger_s = (
+            math.inf
+        )  # sim time of the next interval trigger (the endpoint calls on_sim_time)
         self._pending: set[asyncio.Task[None]] = set()
-        self._last_captured: MavMessage | None = None
+        self._captured: dict[int, MavMessage] = {}  # image_index -> CAMERA_IMAGE_CAPTURED (the latest ones)
         self._warned_info = False
 
     # --- messages ---------------------------------------------------------------------------
@@ -138,7 +185,7 @@ class CameraComponent:
         )  # fmt: skip
 
     def capture_status(self) -> MavMessage:
-        interval = self._interval_task is not None and not self._interval_task.done()
+        interval = self._interval_left > 0
         return M.MAVLink_camera_capture_status_message(
             time_boot_ms(self.vehicle), 3 if interval else 0, 0, self._interval_s if interval else 0.0, 0,
             100_000.0, self.image_count, 0,
@@ -190,8 +237,8 @@ class CameraComponent:
 
     def request_message(self, msgid: int, params: tuple[float, ...]) -> list[MavMessage] | None:
         p2 = int(params[0]) if params and math.isfinite(params[0]) else 0
-        if msgid == M.MAVLINK_MSG_ID_CAMERA_INFORMATION:
-            return [self.camera_information()]
+        if msgid == M.MAVLINK_MSG_ID_CAMERA_INFORMATION:  # + the streams, for MAVSDK (module docstring)
+            return [self.camera_information(), *self.video_stream_information(0)]
         if msgid == M.MAVLINK_MSG_ID_CAMERA_SETTINGS:
             return [self.camera_settings()]
         if msgid == M.MAVLINK_MSG_ID_STORAGE_INFORMATION:
@@ -200,10 +247,17 @@ class CameraComponent:
             return [self.capture_status()]
         if msgid == M.MAVLINK_MSG_ID_VIDEO_STREAM_INFORMATION:
             return self.video_stream_information(p2)
-        if msgid == M.MAVLINK_MSG_ID_VIDEO_STREAM_STATUS:
-            return self.video_stream_status(p2)
+        if msgid == M.MAVLINK_MSG_ID_VIDEO_STREAM_STATUS:  # + the stream information, for MAVSDK
+            return self.video_stream_status(p2) + self.video_stream_information(p2)
         if msgid == M.MAVLINK_MSG_ID_CAMERA_IMAGE_CAPTURED:
-            return [self._last_captured] if self._last_captured is not None else None
+            # param2: the image index (MAVSDK re-requests the ones it missed by index). NaN/negative: the latest;
+            # 0 is also what a client sends without an index, so 0 falls back to the latest when image 0 is gone.
+            want = int(params[0]) if params and math.isfinite(params[0]) and params[0] >= 0 else -1
+            if want in self._captured:
+                return [self._captured[want]]
+            if want > 0:
+                return None  # never taken (or long forgotten): refused
+            return [self._captured[max(self._captured)]] if self._captured else None
         return None
 
     # --- commands ---------------------------------------------------------------------------
@@ -275,14 +329,17 @@ class CameraComponent:
     def start_capture(self, interval: float, total: int) -> Outcome:
         """IMAGE_START_CAPTURE semantics: one image (total 1 or no interval), else `total` images (0 = until stop)."""
         if total == 1 or interval <= 0:
-            if self._interval_task is not None and not self._interval_task.done():
+            if self._interval_left > 0:
                 return Outcome(CommandResult.TEMPORARILY_REJECTED, "Camera: interval capture running")
             self._spawn(self._capture_once())
             return Outcome(CommandResult.ACCEPTED)
         self._stop_interval()
         self._interval_s = interval
         count = total if total > 0 else MAX_INTERVAL_CAPTURES  # 0 = until IMAGE_STOP_CAPTURE
-        self._interval_task = asyncio.get_running_loop().create_task(self._interval_loop(interval, count))
+        self._interval_left = count
+        self.next_trigger_s = float(
+            self.vehicle.time_s
+        )  # the first image at once, then every `interval` sim s
         return Outcome(CommandResult.ACCEPTED)
 
     def _spawn(self, coro: Coroutine[Any, Any, None]) -> None:
@@ -290,19 +347,28 @@ class CameraComponent:
         self._pending.add(task)
         task.add_done_callback(self._pending.discard)
 
-    async def _interval_loop(self, interval_s: float, count: int) -> None:
-        for _ in range(count):
-            await self._capture_once()
-            await asyncio.sleep(interval_s)
+    def on_sim_time(self, now_s: float) -> None:
+        """Interval capture on sim time (as every MAVLink timer): the endpoint calls this when `next_trigger_s` is
+        due. Each trigger is stamped with its sim time and runs on its own: a slow file write never delays the next."""
+        if self._interval_left <= 0 or now_s < self.next_trigger_s:
+            return
+        self._spawn(self._capture_once(time_boot_ms(self.vehicle)))
+        self._interval_left -= 1
+        self.next_trigger_s += self._interval_s
+        if self.next_trigger_s <= now_s:  # a long stall: no burst of catch-up images
+            self.next_trigger_s = now_s + self._interval_s
+        if self._interval_left <= 0:
+            self._stop_interval()
 
     def _stop_interval(self) -> None:
-        if self._interval_task is not None:
-            self._interval_task.cancel()
-            self._interval_task = None
+        self._interval_left = 0
+        self.next_trigger_s = math.inf
 
-    async def _capture_once(self) -> None:
+    async def _capture_once(self, trigger_ms: int | None = None) -> None:
         index = self.image_count
         self.image_count += 1
+        if trigger_ms is None:  # the shutter: when the capture was triggered (sim time)
+            trigger_ms = time_boot_ms(self.vehicle)
         try:
             result = await asyncio.to_thread(self.camera.capture_image, index)
         except Exception as exc:  # the camera failed: report a failed capture, keep the component alive
@@ -311,20 +377,24 @@ class CameraComponent:
             self.statustext(None, Severity.ERROR, f"Camera: capture failed: {exc}")
         if not result.ok:
             self.captures_failed += 1
-        msg = self.image_captured(index, result)
-        self._last_captured = msg
+        msg = self.image_captured(index, result, trigger_ms)
+        self._captured[index] = msg
+        while len(self._captured) > KEEP_CAPTURED_MESSAGES:
+            del self._captured[min(self._captured)]
         self.out.broadcast(msg, Component.CAMERA)
 
-    def image_captured(self, index: int, result: CaptureResult) -> MavMessage:
+    def image_captured(self, index: int, result: CaptureResult, trigger_ms: int | None = None) -> MavMessage:
         meta = result.meta
         state = self.vehicle.state
         geo = self.vehicle.geo
         if meta is not None:
             pos = meta.pos_ned_m
             att = meta.att_rpy_rad
-        else:
+            cam_rot_body: Any = meta.cam_rot_body
+        else:  # no frame metadata: the nadir mount at the current attitude
             pos = (float(state.pos_ned_m[0]), float(state.pos_ned_m[1]), float(state.pos_ned_m[2]))
             att = (float(state.att_rpy_rad[0]), float(state.att_rpy_rad[1]), float(state.att_rpy_rad[2]))
+            cam_rot_body = NADIR_CAM_ROT_BODY
         if (
             meta is not None
             and meta.lat_deg is not None
@@ -338,19 +408,17 @@ class CameraComponent:
         wall = meta.wall_time_s if meta is not None else time.time()
         url = ("file://" + result.path) if result.ok and result.path else ""
         return M.MAVLink_camera_image_captured_message(
-            time_boot_ms(self.vehicle), int(wall * 1e6), 0,
+            time_boot_ms(self.vehicle) if trigger_ms is None else trigger_ms, int(wall * 1e6), 0,
             clamp_int(lat * 1e7, -900000000, 900000000), clamp_int(lon * 1e7, -1800000000, 1800000000),
             clamp_int(alt * 1000.0, -(2**31), 2**31 - 1), clamp_int((home_down - pos[2]) * 1000.0, -(2**31), 2**31 - 1),
-            list(quat_from_euler(*att)), index, 1 if result.ok else 0, url.encode("utf-8", errors="replace")[:205],
+            list(camera_quaternion_ned(att, cam_rot_body)), index, 1 if result.ok else 0, url.encode("utf-8", errors="replace")[:205],
         )  # fmt: skip
 
     async def stop(self) -> None:
         tasks = list(self._pending)
-        if self._interval_task is not None:
-            tasks.append(self._interval_task)
         for t in tasks:
             t.cancel()
         for t in tasks:
             with contextlib.suppress(asyncio.CancelledError, Exception):
                 await t
-        self._interval_task = None
+        self._stop_interval()

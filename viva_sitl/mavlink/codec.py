@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 from pymavlink.dialects.v20 import common as mavlink2
 
 from viva_sitl.mavlink.base import MavMessage
+from viva_sitl.mavlink.signing import SigningState, signing_timestamp_now
 
 # A datagram from a real client holds one or a few frames; adversarial garbage full of start markers would
 # otherwise cost one CRC per byte. Past this many decode attempts the rest of the datagram is dropped (counted).
@@ -24,14 +25,17 @@ class ParseResult:
     bad_frames: int = 0  # frames with a bad CRC/length/header, or truncated at the end of the datagram
     garbage_bytes: int = 0  # bytes skipped while looking for a start marker
     unknown: int = 0  # well-formed frames whose message id is not in the dialect
+    unsigned_rejected: int = 0  # signing required: frames without a valid signature (dropped whole)
 
 
 class DatagramParser:
     """Decoder for one peer (one parser per peer address). `parse(datagram)` never raises on bad input."""
 
-    def __init__(self) -> None:
+    def __init__(self, signing: SigningState | None = None) -> None:
         self._mav = mavlink2.MAVLink(None)
         self._mav.robust_parsing = True  # bad data comes back as MAVLink_bad_data instead of raising
+        self._signing = signing
+        self._signing_rev = -1
 
     def _reset(self, buf: bytearray, index: int) -> None:
         mav = self._mav
@@ -44,6 +48,9 @@ class DatagramParser:
         result = ParseResult()
         buf = bytearray(datagram)
         mav = self._mav
+        if self._signing is not None and self._signing.revision != self._signing_rev:
+            self._signing.apply_to_parser(mav)
+            self._signing_rev = self._signing.revision
         self._reset(buf, 0)
         for _ in range(MAX_ATTEMPTS_PER_DATAGRAM):
             if mav.buf_len() <= 0:
@@ -61,6 +68,9 @@ class DatagramParser:
             if isinstance(msg, mavlink2.MAVLink_bad_data):
                 if msg.reason == "Bad prefix":
                     result.garbage_bytes += len(msg.data)
+                elif msg.reason == "Invalid signature":
+                    # a whole, well-formed frame: skipped (the parser's index is already past it)
+                    result.unsigned_rejected += 1
                 else:
                     result.bad_frames += 1
                     self._reset(buf, start + 1)
@@ -79,10 +89,22 @@ class DatagramParser:
 class Encoder:
     """One outgoing MAVLink 2 stream (per link and component: each has its own sequence number)."""
 
-    def __init__(self, sysid: int, compid: int) -> None:
+    def __init__(
+        self, sysid: int, compid: int, signing: SigningState | None = None, link_id: int = 0
+    ) -> None:
         self.mav = mavlink2.MAVLink(None, srcSystem=sysid, srcComponent=compid)
+        self._signing = signing
+        self._signing_rev = -1
+        self._link_id = link_id
 
     def pack(self, msg: MavMessage) -> bytes:
+        signing = self._signing
+        if signing is not None:
+            if signing.revision != self._signing_rev:
+                signing.apply_to_encoder(self.mav, self._link_id)
+                self._signing_rev = signing.revision
+            if self.mav.signing.sign_outgoing:  # the timestamp follows the clock (never backwards)
+                self.mav.signing.timestamp = max(self.mav.signing.timestamp, signing_timestamp_now())
         buf = bytes(msg.pack(self.mav))
         self.mav.seq = (self.mav.seq + 1) % 256
         return buf

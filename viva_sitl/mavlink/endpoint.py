@@ -2,8 +2,13 @@
 
     UDP datagram -> per-peer DatagramParser (reset per datagram) -> dispatch by message id -> concern modules:
         commands (COMMAND_LONG/INT, SET_MODE), params, mission, offboard (setpoints), camera (compid 100)
-    heartbeat task (1 Hz, autopilot + camera), telemetry task (per-link stream tables), housekeeping task
-    (autopilot events -> STATUSTEXT / MISSION_ITEM_REACHED, mission retries, MISSION_CURRENT on change)
+    on the SIM clock (the vehicle calls `on_sim_step()` after every physics step): heartbeat (1 Hz), telemetry
+    (per-link stream tables, SET_MESSAGE_INTERVAL), housekeeping (autopilot events -> STATUSTEXT /
+    MISSION_ITEM_REACHED, mission retries, MISSION_CURRENT on change), peer timeouts. `--speed N` therefore changes
+    only the wall clock: ATTITUDE at 100 Hz is 100 messages per simulated second at any speed, as in PX4 lockstep.
+    One wall-clock task keeps the link alive for clients' own (wall) timeouts (a heartbeat at least once a wall
+    second when the simulation runs slower than real time), flushes the .tlog and drives a vehicle that never calls
+    on_sim_step().
 
 Each link sends from its own local port to its configured remote (MAVSDK's udpin://:14540, QGC's 14550) and to every
 peer that talked to it in the last `peer_timeout_s`; replies go to the peer that asked. No handler exception ever
@@ -14,6 +19,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import errno
 import logging
 import math
 import socket
@@ -48,17 +54,28 @@ from viva_sitl.mavlink.offboard import (
     decode_position_target_local,
 )
 from viva_sitl.mavlink.params import ParamProtocol
+from viva_sitl.mavlink.signing import SIGN_CFG_NON_USB, SIGN_CFG_OFF, SigningState, parse_key
 from viva_sitl.mavlink.telemetry import LinkStreams, StreamProfile, TelemetryBuilder, message_id
+from viva_sitl.mavlink.tlog import TlogWriter
 
-__all__ = ["MavlinkConfig", "MavlinkEndpoint", "VehicleLink", "EndpointStats"]
+__all__ = [
+    "EndpointStartError",
+    "EndpointStats",
+    "MavlinkConfig",
+    "MavlinkEndpoint",
+    "PortInUseError",
+    "VehicleLink",
+]
 
 log = logging.getLogger(__name__)
 M = mavlink2
 
 MAX_PARSERS_PER_LINK = 64  # per-peer parsers kept (LRU): a flood of source ports cannot grow memory
 MAX_PEERS_PER_LINK = 16  # talking peers that receive telemetry; the longest silent one makes room
-HOUSEKEEPING_HZ = 20.0
-SETPOINT_WARN_INTERVAL_S = 5.0  # at most one STATUSTEXT per this for ignored setpoints
+HOUSEKEEPING_HZ = 20.0  # per sim second
+SETPOINT_WARN_INTERVAL_S = 5.0  # sim s: at most one STATUSTEXT per this for ignored setpoints
+WALL_TICK_S = 0.05  # the wall-clock task's period
+HEARTBEAT_MAX_WALL_GAP_S = 1.0  # MAVSDK/QGC drop a vehicle after 3 wall seconds without a heartbeat
 
 
 @dataclass(frozen=True)
@@ -82,11 +99,15 @@ class MavlinkConfig:
     gcs_profile: StreamProfile = StreamProfile.ONBOARD
     rate_overrides: tuple[tuple[str, float], ...] = ()  # (("ATTITUDE", 50.0), ...) Hz for both links; 0 = off
     peer_timeout_s: float = (
-        10.0  # a peer silent this long stops receiving telemetry (the default remote never)
+        10.0  # sim s: a peer silent this long stops receiving telemetry (default remote: never)
     )
     mission_max_items: int = 1000
-    mission_retry_s: float = 0.5
+    mission_retry_s: float = 0.5  # sim s between mission-protocol retries
     mission_max_retries: int = 5
+    tlog: bool = True  # the app records a .tlog (in the run directory unless tlog_path says where)
+    tlog_path: str | None = None  # the endpoint records every packet sent/accepted here; None = no log
+    signing_key: str | None = None  # MAVLink 2 signing key: 64 hex digits, or a passphrase (its SHA-256)
+    sign_cfg: int | None = None  # PX4's MAV_SIGN_CFG: 0 off, 1/2 required (UDP); None: 1 with a key, else 0
 
     def __post_init__(self) -> None:
         if isinstance(self.api_profile, str):  # accept "onboard"/"normal" from code, like TOML
@@ -121,6 +142,10 @@ class MavlinkConfig:
             raise ValueError(f"mavlink.mission_max_items must be in 1..65535, got {self.mission_max_items}")
         if not (self.mission_retry_s > 0 and self.mission_max_retries >= 0):
             raise ValueError("mavlink.mission_retry_s must be > 0 and mission_max_retries >= 0")
+        if self.signing_key is not None:
+            parse_key(self.signing_key)  # ValueError for an empty key
+        if self.sign_cfg is not None and self.sign_cfg not in (0, 1, 2):
+            raise ValueError(f"mavlink.sign_cfg (PX4 MAV_SIGN_CFG) must be 0, 1 or 2, got {self.sign_cfg}")
 
     @property
     def system_id(self) -> int:
@@ -137,6 +162,11 @@ class MavlinkConfig:
     @property
     def gcs_local_port_resolved(self) -> int:
         return self.gcs_local_port if self.gcs_local_port is not None else 18570 + self.instance
+
+    def signing_state(self) -> SigningState:
+        key = parse_key(self.signing_key) if self.signing_key is not None else None
+        cfg = self.sign_cfg if self.sign_cfg is not None else (SIGN_CFG_NON_USB if key else SIGN_CFG_OFF)
+        return SigningState(key, cfg)
 
     def overrides_hz(self) -> dict[int, float]:
         return {message_id(str(name)): float(hz) for name, hz in self.rate_overrides}
@@ -160,7 +190,16 @@ class EndpointStats:
     setpoints_rejected: int = 0  # not decodable (NaN/inf, masks, frames): never reached the autopilot
     manual_inputs: int = 0
     send_errors: int = 0
-    telemetry_late: int = 0  # telemetry ticks more than one period late (the loop was busy)
+    telemetry_late: int = 0  # telemetry messages due but skipped: one physics step crossed several periods
+    unsigned_rejected: int = 0  # signing on: frames without a valid signature, dropped (PX4: not handled)
+
+
+class EndpointStartError(OSError):
+    """The endpoint cannot start (a port it cannot bind, a .tlog it cannot create): `strerror` says why in one line."""
+
+
+class PortInUseError(EndpointStartError):
+    """A MAVLink UDP port is taken (another viva-sitl or PX4 SITL instance): the message names it."""
 
 
 class _UdpProtocol(asyncio.DatagramProtocol):
@@ -183,13 +222,14 @@ class _Link:
     default_remote: tuple[str, int] | None
     streams: LinkStreams
     encoders: dict[Component, Encoder]
+    signing: SigningState | None = None
     peers: dict[tuple[str, int], float] = field(default_factory=dict)  # talking peer -> last rx (monotonic)
     parsers: OrderedDict[tuple[str, int], DatagramParser] = field(default_factory=OrderedDict)
 
     def parser(self, addr: tuple[str, int]) -> DatagramParser:
         p = self.parsers.get(addr)
         if p is None:
-            p = self.parsers[addr] = DatagramParser()
+            p = self.parsers[addr] = DatagramParser(self.signing)
             while len(self.parsers) > MAX_PARSERS_PER_LINK:
                 self.parsers.popitem(last=False)
         else:
@@ -213,6 +253,12 @@ class _Link:
         return (str(sockname[0]), int(sockname[1]))
 
 
+def _advance(due_s: float, period_s: float, now_s: float) -> float:
+    """The next due time of a periodic event: keeps the phase; after a gap, one period from now (no burst)."""
+    due_s += period_s
+    return due_s if due_s > now_s else now_s + period_s
+
+
 def _resolve(host: str, port: int) -> tuple[str, int]:
     """A numeric IPv4 address (sendto with a name would resolve it on every datagram)."""
     info = socket.getaddrinfo(host, port, socket.AF_INET, socket.SOCK_DGRAM)
@@ -233,6 +279,7 @@ class MavlinkEndpoint:
         self._statustext_id = 0
         self._last_setpoint_warn = -math.inf
         self._loop: asyncio.AbstractEventLoop | None = None
+        self.signing = self.config.signing_state()
         self.telemetry = TelemetryBuilder(vehicle, self.sysid)
         # looked up per call: Vehicle.reset replaces the autopilot
         self.telemetry.prearm_ok = lambda: bool(self.vehicle.autopilot.prearm_check(self.vehicle.time_s).ok)
@@ -253,6 +300,12 @@ class MavlinkEndpoint:
         self._last_hb_state: tuple[bool, FlightMode] | None = None
         self._last_home: tuple[float, float, float] | None = None
         self._last_landed: int | None = None
+        self._next_service_s = math.inf
+        self._next_heartbeat_s = 0.0
+        self._next_housekeeping_s = 0.0
+        self._last_now_s = 0.0
+        self._last_heartbeat_wall_s = -math.inf
+        self._tlog: TlogWriter | None = None
         self._handlers: dict[int, Callable[[_Link, Origin, MavMessage], None]] = {
             M.MAVLINK_MSG_ID_HEARTBEAT: self._on_heartbeat,
             M.MAVLINK_MSG_ID_COMMAND_LONG: self._on_command,
@@ -267,13 +320,13 @@ class MavlinkEndpoint:
             M.MAVLINK_MSG_ID_PARAM_SET: self._targeted(lambda _lk, o, m: self.params.handle_set(o, m)),
             M.MAVLINK_MSG_ID_FILE_TRANSFER_PROTOCOL: self._targeted(lambda _lk, o, m: self.ftp.handle(o, m)),
             M.MAVLINK_MSG_ID_MISSION_COUNT: self._targeted(
-                lambda _lk, o, m: self.mission.handle_count(o, m, self._mono())
+                lambda _lk, o, m: self.mission.handle_count(o, m, self._now())
             ),
             M.MAVLINK_MSG_ID_MISSION_ITEM: self._targeted(
-                lambda _lk, o, m: self.mission.handle_item(o, m, self._mono())
+                lambda _lk, o, m: self.mission.handle_item(o, m, self._now())
             ),
             M.MAVLINK_MSG_ID_MISSION_ITEM_INT: self._targeted(
-                lambda _lk, o, m: self.mission.handle_item(o, m, self._mono())
+                lambda _lk, o, m: self.mission.handle_item(o, m, self._now())
             ),
             M.MAVLINK_MSG_ID_MISSION_REQUEST_LIST: self._targeted(
                 lambda _lk, o, m: self.mission.handle_request_list(o, m)
@@ -297,6 +350,7 @@ class MavlinkEndpoint:
             M.MAVLINK_MSG_ID_MANUAL_CONTROL: self._on_manual_control,
             M.MAVLINK_MSG_ID_PING: self._on_ping,
             M.MAVLINK_MSG_ID_TIMESYNC: self._on_timesync,
+            M.MAVLINK_MSG_ID_SETUP_SIGNING: self._on_setup_signing,
         }
 
     # --- lifecycle --------------------------------------------------------------------------
@@ -333,26 +387,47 @@ class MavlinkEndpoint:
                     f"mavlink: cannot resolve the {kind.value} remote host {rhost!r}: {exc}"
                 ) from exc
         try:
-            for kind, local_port, _, _, profile in specs:
-                transport, _ = await loop.create_datagram_endpoint(
-                    lambda kind=kind: _UdpProtocol(self, kind),  # type: ignore[misc]
-                    local_addr=(cfg.listen_host, local_port),
-                    family=socket.AF_INET,
-                )
-                encoders = {c: Encoder(self.sysid, int(c)) for c in Component}
+            for link_id, (kind, local_port, _, _, profile) in enumerate(specs):
+                try:
+                    transport, _ = await loop.create_datagram_endpoint(
+                        lambda kind=kind: _UdpProtocol(self, kind),  # type: ignore[misc]
+                        local_addr=(cfg.listen_host, local_port),
+                        family=socket.AF_INET,
+                    )
+                except OSError as exc:
+                    if exc.errno == errno.EADDRINUSE:
+                        flag = "--api-local-port" if kind == LinkKind.API else "--gcs-local-port"
+                        raise PortInUseError(
+                            exc.errno,
+                            f"UDP port {local_port} ({kind.value} link) on {cfg.listen_host} is already in use "
+                            f"(another viva-sitl or PX4 SITL?): run with --instance N (N = 1, 2, ...) or {flag}",
+                        ) from None
+                    raise EndpointStartError(
+                        exc.errno,
+                        f"MAVLink endpoint cannot bind UDP {cfg.listen_host}:{local_port}: {exc.strerror or exc}",
+                    ) from exc
+                encoders = {c: Encoder(self.sysid, int(c), self.signing, link_id) for c in Component}
                 streams = LinkStreams(profile, overrides, builders)
-                self._links[kind] = _Link(kind, transport, remotes[kind], streams, encoders)  # type: ignore[arg-type]
-        except OSError as exc:
+                self._links[kind] = _Link(kind, transport, remotes[kind], streams, encoders, self.signing)  # type: ignore[arg-type]
+        except OSError:
             for link in self._links.values():
                 link.transport.close()
             self._links.clear()
-            raise OSError(
-                exc.errno, f"MAVLink endpoint cannot bind {cfg.listen_host}: {exc.strerror or exc}"
-            ) from exc
+            raise
+        if cfg.tlog_path:
+            try:
+                self._tlog = TlogWriter(cfg.tlog_path)
+            except OSError as exc:
+                for link in self._links.values():
+                    link.transport.close()
+                self._links.clear()
+                raise EndpointStartError(
+                    exc.errno, f"cannot create the tlog {cfg.tlog_path}: {exc.strerror or exc}"
+                ) from exc
+        self._reset_schedule(self._now())
+        self._last_now_s = self._now()
         self._tasks = [
-            loop.create_task(self._heartbeat_loop(), name="mavlink-heartbeat"),
-            loop.create_task(self._telemetry_loop(), name="mavlink-telemetry"),
-            loop.create_task(self._housekeeping_loop(), name="mavlink-housekeeping"),
+            loop.create_task(self._wall_loop(), name="mavlink-wall"),
             loop.create_task(self.params.run(), name="mavlink-params"),
         ]
         log.info(
@@ -373,6 +448,13 @@ class MavlinkEndpoint:
         for link in self._links.values():
             link.transport.close()
         self._links.clear()
+        if self._tlog is not None:
+            self._tlog.close()
+
+    @property
+    def tlog_path(self) -> str | None:
+        """The .tlog being written (None: none)."""
+        return str(self._tlog.path) if self._tlog is not None else None
 
     @property
     def api_address(self) -> tuple[str, int]:
@@ -393,6 +475,13 @@ class MavlinkEndpoint:
         out["mission_uploads_completed"] = self.mission.uploads_completed
         out["mission_uploads_failed"] = self.mission.uploads_failed
         out["command_acks"] = self.commands.acks_sent
+        if self._tlog is not None:
+            out["tlog"] = {
+                "path": str(self._tlog.path),
+                "packets": self._tlog.packets,
+                "failed": self._tlog.failed,
+            }
+        out["signing"] = {"key_set": self.signing.key is not None, "sign_cfg": self.signing.sign_cfg}
         if self.camera is not None:
             out["images_captured"] = self.camera.image_count
         out["peers"] = {
@@ -405,8 +494,10 @@ class MavlinkEndpoint:
         self._listeners.append(listener)
 
     # --- sending (Outbox) -------------------------------------------------------------------
-    def _mono(self) -> float:
-        return self._loop.time() if self._loop is not None else time.monotonic()
+    def _now(self) -> float:
+        """The endpoint's clock: simulation seconds (the physics clock), so --speed changes only the wall clock."""
+        t = float(self.vehicle.time_s)
+        return t if math.isfinite(t) else 0.0
 
     def _send(self, link: _Link, msg: MavMessage, component: Component, addrs: list[tuple[str, int]]) -> None:
         if not addrs:
@@ -417,6 +508,8 @@ class MavlinkEndpoint:
             log.exception("cannot pack %s", msg.get_type())
             self._stats.handler_errors += 1
             return
+        if self._tlog is not None:
+            self._tlog.write(buf)
         for addr in addrs:
             try:
                 link.transport.sendto(buf, addr)
@@ -432,7 +525,7 @@ class MavlinkEndpoint:
             self._send(link, msg, component, [origin.addr])
 
     def broadcast(self, msg: MavMessage, component: Component = Component.AUTOPILOT) -> None:
-        now = self._mono()
+        now = self._now()
         for link in self._links.values():
             self._send(link, msg, component, link.targets(now, self.config.peer_timeout_s))
 
@@ -440,7 +533,7 @@ class MavlinkEndpoint:
         """PX4 sends every STATUSTEXT on every link (a GCS sees why a script's command was refused); the peer that
         caused it gets it even when it is not (yet) a telemetry target."""
         self._statustext_id = (self._statustext_id + 1) % 0xFFFF
-        now = self._mono()
+        now = self._now()
         for msg in statustext_messages(int(severity), text, self._statustext_id + 1):
             self.broadcast(msg)
             if origin is not None:
@@ -468,10 +561,14 @@ class MavlinkEndpoint:
         st.bad_frames += result.bad_frames
         st.garbage_bytes += result.garbage_bytes
         st.unknown_messages += result.unknown
+        st.unsigned_rejected += result.unsigned_rejected
         if result.messages:
-            link.heard(addr, self._mono())
+            link.heard(addr, self._now())
+        tlog = self._tlog
         for msg in result.messages:
             st.rx_messages += 1
+            if tlog is not None:
+                tlog.write(bytes(msg.get_msgbuf()))
             handler = self._handlers.get(msg.get_msgId())
             if handler is None:
                 st.ignored_messages += 1
@@ -518,6 +615,9 @@ class MavlinkEndpoint:
         if tc == Component.CAMERA or (tc == 0 and self.camera is not None and is_camera_command(req)):
             if self.camera is not None:
                 self.camera.handle(origin, req)
+                self._next_service_s = min(
+                    self._next_service_s, self.camera.next_trigger_s
+                )  # interval capture
             else:
                 self._stats.ignored_messages += 1  # no camera component: nobody answers (as on a real bus)
             return
@@ -532,7 +632,7 @@ class MavlinkEndpoint:
 
     def _setpoint_rejected(self, reason: str) -> None:
         self._stats.setpoints_rejected += 1
-        now = self._mono()
+        now = self._now()
         if now - self._last_setpoint_warn >= SETPOINT_WARN_INTERVAL_S:
             self._last_setpoint_warn = now
             self._statustext(None, Severity.WARNING, f"Offboard setpoint ignored: {reason}")
@@ -582,7 +682,7 @@ class MavlinkEndpoint:
         if isinstance(manual, Rejected):
             self._setpoint_rejected(manual.reason)
             return
-        self.telemetry.last_manual_input_s = time.monotonic()
+        self.telemetry.last_manual_input_s = self._now()
         self.vehicle.autopilot.set_manual_input(self.vehicle.time_s, manual)
         self._stats.manual_inputs += 1
 
@@ -592,6 +692,20 @@ class MavlinkEndpoint:
             self.reply(
                 origin, M.MAVLink_ping_message(int(msg.time_usec), int(msg.seq), origin.sysid, origin.compid)
             )
+
+    def _on_setup_signing(self, link: _Link, origin: Origin, msg: MavMessage) -> None:
+        """SETUP_SIGNING (PX4): a message that got past the signature rules sets the key for every link."""
+        if int(msg.target_system) not in (0, self.sysid) or int(msg.target_component) not in (
+            0,
+            Component.AUTOPILOT,
+        ):
+            self._stats.ignored_messages += 1
+            return
+        key = bytes(bytearray(msg.secret_key))
+        self.signing.set_key(key, int(msg.initial_timestamp))
+        text = "MAVLink signing key set" if self.signing.key is not None else "MAVLink signing key cleared"
+        log.info("%s by %s:%d (sysid %d)", text, origin.addr[0], origin.addr[1], origin.sysid)
+        self._statustext(origin, Severity.INFO, text)
 
     def _on_timesync(self, link: _Link, origin: Origin, msg: MavMessage) -> None:
         if int(msg.tc1) == 0:  # a request: answer with our clock (sim time since boot, ns; never 0)
@@ -612,7 +726,7 @@ class MavlinkEndpoint:
 
     def _set_interval(self, origin: Origin, msgid: int, interval_us: float) -> bool:
         link = self._links.get(origin.link)
-        return link is not None and link.streams.set_interval(msgid, interval_us, self._mono())
+        return link is not None and link.streams.set_interval(msgid, interval_us, self._now())
 
     def _get_interval(self, origin: Origin, msgid: int) -> int:
         if msgid == M.MAVLINK_MSG_ID_HEARTBEAT:
@@ -620,62 +734,103 @@ class MavlinkEndpoint:
         link = self._links.get(origin.link)
         return link.streams.interval_us(msgid) if link is not None else 0
 
-    # --- tasks ------------------------------------------------------------------------------
-    def _send_heartbeats(self) -> None:
-        self.broadcast(self.telemetry.heartbeat())
-        if self.camera is not None:
-            self.broadcast(self.camera.heartbeat(), Component.CAMERA)
+    # --- the sim-clock schedule -------------------------------------------------------------
+    def on_sim_step(self) -> None:
+        """Call after every physics step, on the endpoint's loop: sends what is due at the new simulation time.
 
-    async def _heartbeat_loop(self) -> None:
-        period = 1.0 / self.config.heartbeat_hz
-        while True:
-            try:
-                self._send_heartbeats()
-            except Exception:
-                log.exception("heartbeat failed")
-                self._stats.handler_errors += 1
-            await asyncio.sleep(period)
+        Cheap when nothing is due (one comparison). Because every step is seen, message rates are exact per
+        simulated second even when the physics task runs several steps in one batch (load, --speed > 1)."""
+        if not self._links:
+            return
+        now = self._now()
+        if now < self._last_now_s:  # the simulation was reset: restart every schedule from now
+            self._reset_schedule(now)
+        self._last_now_s = now
+        if now >= self._next_service_s:
+            self._service(now)
 
-    async def _telemetry_loop(self) -> None:
-        loop = asyncio.get_running_loop()
-        now = loop.time()
+    def _reset_schedule(self, now: float) -> None:
+        self._next_heartbeat_s = self._next_housekeeping_s = now
         for link in self._links.values():
             for stream in link.streams.streams.values():
                 stream.next_due_s = now
-        timeout = self.config.peer_timeout_s
-        while True:
-            now = loop.time()
-            for link in self._links.values():
-                due = link.streams.due(now)
-                if not due:
-                    continue
-                targets = link.targets(now, timeout)
-                if not targets:
-                    continue  # nobody listens on this link: keep the schedule, skip the work
-                for msgid in due:
-                    try:
-                        msg = self.telemetry.build(msgid)
-                    except Exception:
-                        log.exception("building telemetry message %d failed", msgid)
-                        self._stats.handler_errors += 1
-                        continue
-                    if msg is not None:
-                        self._send(link, msg, Component.AUTOPILOT, targets)
-            next_due = min((link.streams.next_due_s() for link in self._links.values()), default=now + 1.0)
-            delay = next_due - loop.time()
-            if delay < -0.05:
-                self._stats.telemetry_late += 1
-            await asyncio.sleep(min(1.0, max(0.0, delay)))
+        self._next_service_s = now
 
-    async def _housekeeping_loop(self) -> None:
-        period = 1.0 / HOUSEKEEPING_HZ
-        while True:
+    def _service(self, now: float) -> None:
+        heartbeat_due = now >= self._next_heartbeat_s
+        if heartbeat_due or now >= self._next_housekeeping_s:
+            # housekeeping before any heartbeat: the STATUSTEXT that explains a mode change (failsafe, ...) goes
+            # out before the first heartbeat that shows the new mode, as a client reading both expects
             try:
                 self._housekeeping()
             except Exception:
                 log.exception("housekeeping failed")
                 self._stats.handler_errors += 1
-            await asyncio.sleep(period)
+            if now >= self._next_housekeeping_s:
+                self._next_housekeeping_s = _advance(self._next_housekeeping_s, 1.0 / HOUSEKEEPING_HZ, now)
+        if heartbeat_due:
+            self._send_heartbeats()
+            self._next_heartbeat_s = _advance(self._next_heartbeat_s, 1.0 / self.config.heartbeat_hz, now)
+        if self.camera is not None and now >= self.camera.next_trigger_s:
+            self.camera.on_sim_time(now)
+        timeout = self.config.peer_timeout_s
+        built: dict[int, MavMessage | None] = {}  # one build per message and instant, shared by the links
+        for link in self._links.values():
+            due = link.streams.due(now)
+            self._stats.telemetry_late += link.streams.skipped
+            link.streams.skipped = 0
+            if not due:
+                continue
+            targets = link.targets(now, timeout)
+            if not targets:
+                continue  # nobody listens on this link: keep the schedule, skip the work
+            for msgid in due:
+                if msgid in built:
+                    msg = built[msgid]
+                else:
+                    try:
+                        msg = built[msgid] = self.telemetry.build(msgid)
+                    except Exception:
+                        log.exception("building telemetry message %d failed", msgid)
+                        self._stats.handler_errors += 1
+                        built[msgid] = None
+                        continue
+                if msg is not None:
+                    self._send(link, msg, Component.AUTOPILOT, targets)
+        self._next_service_s = min(
+            self._next_heartbeat_s,
+            self._next_housekeeping_s,
+            self.camera.next_trigger_s if self.camera is not None else math.inf,
+            *(link.streams.next_due_s() for link in self._links.values()),
+        )
+
+    def _send_heartbeats(self) -> None:
+        try:
+            self.broadcast(self.telemetry.heartbeat())
+            if self.camera is not None:
+                self.broadcast(self.camera.heartbeat(), Component.CAMERA)
+        except Exception:
+            log.exception("heartbeat failed")
+            self._stats.handler_errors += 1
+        self._last_heartbeat_wall_s = time.monotonic()
+
+    async def _wall_loop(self) -> None:
+        """Wall-clock duties: a heartbeat at least once a wall second (a slow simulation must not look dead to
+        MAVSDK's 3 s timeout), the .tlog flush, and the schedule for a vehicle that never calls on_sim_step()."""
+        last_flush = time.monotonic()
+        while True:
+            await asyncio.sleep(WALL_TICK_S)
+            wall = time.monotonic()
+            try:
+                if wall - self._last_heartbeat_wall_s >= HEARTBEAT_MAX_WALL_GAP_S:
+                    self._send_heartbeats()
+                self.on_sim_step()
+                if self._tlog is not None and wall - last_flush >= 1.0:
+                    last_flush = wall
+                    self._tlog.flush()
+            except Exception:
+                log.exception("endpoint wall tick failed")
+                self._stats.handler_errors += 1
 
     def _housekeeping(self) -> None:
         ap = self.vehicle.autopilot
@@ -692,7 +847,7 @@ class MavlinkEndpoint:
                     self._statustext(None, Severity.WARNING, outcome.reason)
             else:
                 log.info("camera action %s dropped: no camera component", action.kind)
-        self.mission.poll(self._mono())
+        self.mission.poll(self._now())
         current = (int(ap.mission_current_seq), len(ap.mission_items))
         if current != self._last_mission_current:
             self._last_mission_current = current

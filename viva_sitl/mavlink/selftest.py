@@ -20,6 +20,7 @@ import math
 import signal
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -76,6 +77,8 @@ class SelftestVehicle:
         self.boot_wall_time_s = time.time()
         self.pacer = RealTimePacer(dt_s=self.vehicle.dt_s, speed=speed)
         self._task: asyncio.Task[None] | None = None
+        # called after every step (MavlinkEndpoint.on_sim_step)
+        self.step_hooks: list[Callable[[], None]] = []
 
     @property
     def autopilot(self) -> Autopilot:
@@ -103,6 +106,8 @@ class SelftestVehicle:
 
     def step_once(self) -> None:
         self.vehicle.step(1)
+        for hook in self.step_hooks:
+            hook()
 
     def _after_batch(self) -> None:
         self.pacer.dt_s = self.vehicle.dt_s
@@ -157,6 +162,8 @@ async def _main(args: argparse.Namespace) -> dict[str, object]:
         **{k: v for k, v in updates.items() if v is not None},  # type: ignore[arg-type]
     )
     endpoint = None if args.no_endpoint else MavlinkEndpoint(vehicle, config)
+    if endpoint is not None:
+        vehicle.step_hooks.append(endpoint.on_sim_step)
     stop = asyncio.Event()
     loop = asyncio.get_running_loop()
     for sig in (signal.SIGINT, signal.SIGTERM):

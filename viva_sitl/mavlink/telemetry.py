@@ -2,7 +2,9 @@
 
 Rates follow PX4's mavlink modes: by default both links run PX4's "onboard" profile (ATTITUDE 100 Hz, ...) as the
 issue asks; PX4's lighter "normal" profile (what PX4 SITL runs on its GCS link) is available per link. Each link
-keeps its own intervals, changed by SET_MESSAGE_INTERVAL received on that link (0 = back to the default, -1 = off). Scheduling is on the wall clock of the event loop.
+keeps its own intervals, changed by SET_MESSAGE_INTERVAL received on that link (0 = back to the default, -1 = off).
+Scheduling is on simulation time (the endpoint passes the physics clock): rates are per simulated second, as in PX4
+lockstep SITL, whatever the --speed factor.
 """
 
 from __future__ import annotations
@@ -18,6 +20,7 @@ from pymavlink.dialects.v20 import common as mavlink2
 from viva_sitl.autopilot.types import FlightMode, LandedState
 from viva_sitl.dynamics import EavState, quat_from_euler
 from viva_sitl.mavlink.base import UINT16_MAX, MavMessage, VehicleLink, clamp_int, time_boot_ms, time_boot_us
+from viva_sitl.mavlink.version import FLIGHT_SW_VERSION, flight_custom_version
 
 M = mavlink2
 MAX_STREAM_HZ = 500.0  # SET_MESSAGE_INTERVAL requests faster than this are capped (CPU of a 2-core machine)
@@ -53,8 +56,6 @@ AUTOPILOT_CAPABILITIES = (
     | M.MAV_PROTOCOL_CAPABILITY_FLIGHT_TERMINATION
     | M.MAV_PROTOCOL_CAPABILITY_MAVLINK2
 )
-# What AUTOPILOT_VERSION claims: PX4 v1.15.0 "official" (QGC enables features by PX4 version)
-FLIGHT_SW_VERSION = (1 << 24) | (15 << 16) | (0 << 8) | 255
 
 
 _MI = M.MAV_MODE_FLAG_MANUAL_INPUT_ENABLED
@@ -114,6 +115,29 @@ PROFILE_RATES_HZ: dict[StreamProfile, dict[int, float]] = {
         M.MAVLINK_MSG_ID_ORBIT_EXECUTION_STATUS: 2.0,  # sent only while orbiting
     },
 }
+
+
+def battery_charge_state(remaining: float, params: object) -> int:
+    """MAV_BATTERY_CHARGE_STATE from the remaining fraction and PX4's BAT_LOW_THR / BAT_CRIT_THR /
+    BAT_EMERGEN_THR (the parameters when the store has them, PX4's defaults otherwise)."""
+
+    def thr(name: str, default: float) -> float:
+        get = getattr(params, "get", None)
+        try:
+            value = float(get(name)) if callable(get) else default
+        except Exception:  # a store without this parameter: PX4's default
+            value = default
+        return value if math.isfinite(value) else default
+
+    if not math.isfinite(remaining):
+        return int(M.MAV_BATTERY_CHARGE_STATE_UNDEFINED)
+    if remaining <= thr("BAT_EMERGEN_THR", 0.05):
+        return int(M.MAV_BATTERY_CHARGE_STATE_EMERGENCY)
+    if remaining <= thr("BAT_CRIT_THR", 0.07):
+        return int(M.MAV_BATTERY_CHARGE_STATE_CRITICAL)
+    if remaining <= thr("BAT_LOW_THR", 0.15):
+        return int(M.MAV_BATTERY_CHARGE_STATE_LOW)
+    return int(M.MAV_BATTERY_CHARGE_STATE_OK)
 
 
 def message_id(name: str) -> int:
@@ -189,7 +213,7 @@ class TelemetryBuilder:
         self._snap: Snapshot | None = None
         self._prev_att: tuple[float, float, float, float] | None = None  # (t, roll, pitch, yaw)
         self._rates = (0.0, 0.0, 0.0)
-        self.last_manual_input_s = -math.inf  # wall time of the last MANUAL_CONTROL (RC "present" bit)
+        self.last_manual_input_s = -math.inf  # sim time of the last MANUAL_CONTROL (RC "present" bit)
         self.prearm_ok: Callable[[], bool] = lambda: not self.vehicle.autopilot.armed
         self.builders: dict[int, Callable[[], MavMessage | None]] = {
             M.MAVLINK_MSG_ID_HEARTBEAT: self.heartbeat,
@@ -294,7 +318,7 @@ class TelemetryBuilder:
         if math.isfinite(self.last_manual_input_s):
             present |= SENSOR_RC
             enabled |= SENSOR_RC
-            if time.monotonic() - self.last_manual_input_s < 1.0:
+            if float(self.vehicle.time_s) - self.last_manual_input_s < 1.0:
                 health |= SENSOR_RC
         try:
             if self.prearm_ok():
@@ -381,11 +405,7 @@ class TelemetryBuilder:
         ap = self.vehicle.autopilot
         volt_mv = clamp_int(ap.battery_voltage_v * 1000.0, 0, UINT16_MAX - 1)
         remaining = ap.battery_remaining
-        charge = (
-            M.MAV_BATTERY_CHARGE_STATE_OK
-            if remaining > 0.15
-            else (M.MAV_BATTERY_CHARGE_STATE_LOW if remaining > 0.07 else M.MAV_BATTERY_CHARGE_STATE_CRITICAL)
-        )
+        charge = battery_charge_state(remaining, ap.params)
         return M.MAVLink_battery_status_message(
             0,
             M.MAV_BATTERY_FUNCTION_ALL,
@@ -427,13 +447,23 @@ class TelemetryBuilder:
         max_thrust_n = float(eav_params().max_thrust_n if callable(eav_params) else ap.eav.max_thrust_n)
         throttle = clamp_int(100.0 * s.thrust_n / max_thrust_n, 0, 100) if max_thrust_n > 0 else 0
         return M.MAVLink_vfr_hud_message(
-            s.ground_speed_m_s,
+            self.airspeed_m_s(s),
             s.ground_speed_m_s,
             clamp_int(s.heading_deg, 0, 359),
             throttle,
             s.alt_amsl_m,
             -s.vel_ned_m_s[2],
         )
+
+    def airspeed_m_s(self, s: Snapshot) -> float:
+        """|v_ground - v_wind|: the air-relative speed (mean wind from the live airframe + the current gust)."""
+        ap = self.vehicle.autopilot
+        eav_params = getattr(ap, "eav_params", None)
+        wind_params = eav_params().wind if callable(eav_params) else ap.eav.wind
+        mean = tuple(float(v) for v in wind_params.mean_wind_ned_m_s)
+        gust = getattr(self.vehicle.state, "gust_ned_m_s", (0.0, 0.0, 0.0))
+        rel = [s.vel_ned_m_s[i] - mean[i] - float(gust[i]) for i in range(3)]
+        return _f(math.sqrt(rel[0] ** 2 + rel[1] ** 2 + rel[2] ** 2))
 
     def mission_current(self) -> MavMessage:
         ap = self.vehicle.autopilot
@@ -463,14 +493,15 @@ class TelemetryBuilder:
 
     def autopilot_version(self) -> MavMessage:
         uid = 0x56495641_00000000 | self.sysid  # "VIVA" + sysid: unique per instance
+        custom = flight_custom_version()  # git hash bytes as PX4 (zeros outside a source checkout)
         return M.MAVLink_autopilot_version_message(
             AUTOPILOT_CAPABILITIES,
             FLIGHT_SW_VERSION,
+            FLIGHT_SW_VERSION,  # middleware_sw_version: PX4 reports its firmware version here too
             0,
             0,
-            0,
-            [0] * 8,
-            [0] * 8,
+            list(custom),
+            list(custom),
             [0] * 8,
             0,
             0,
@@ -494,6 +525,7 @@ class LinkStreams:
         rates = dict(PROFILE_RATES_HZ[profile])
         rates.update(overrides_hz)
         self.builders = builders
+        self.skipped = 0  # due messages not sent because one step crossed several periods (read and reset)
         self.streams: dict[int, Stream] = {}
         for msgid, hz in rates.items():
             interval = 1.0 / hz if hz > 0 else None
@@ -535,6 +567,7 @@ class LinkStreams:
             out.append(stream.msgid)
             stream.next_due_s += stream.interval_s
             if stream.next_due_s <= now_s:
+                self.skipped += int((now_s - stream.next_due_s) / stream.interval_s) + 1
                 stream.next_due_s = now_s + stream.interval_s
         return out
 

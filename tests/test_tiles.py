@@ -1,0 +1,372 @@
+"""The tiled footage cache: same images as the video (lossless codecs) or within a stated PSNR (jpeg), resumable
+builds, a bounded size and LRU, and corruption that gives one clear error, never a wrong image. Also the trilinear
+anti-aliasing's PSNR ordering against the plain warp. Real generated H.264 clips and real files; no mocks."""
+
+from __future__ import annotations
+
+import json
+import math
+import shutil
+from collections.abc import Iterator
+from dataclasses import replace
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from viva_sitl.camera import CameraParams, LazyPyramid, Renderer
+from viva_sitl.config import SimConfig
+from viva_sitl.footage import FootageError, open_footage
+from viva_sitl.footage.cli import footage_main
+from viva_sitl.footage.geometry import FootageGeometry
+from viva_sitl.footage.ingest import ingest_tiles
+from viva_sitl.footage.testclip import write_coded_clip
+from viva_sitl.footage.tiles import COMMIT_FRAMES, TileSource, build_tiles
+from viva_sitl.sim import Simulator
+
+W, H = 1280, 720
+ALT_M, HFOV = 100.0, 82.1
+FRAMES = 6
+# jpeg quality 95 (4:4:4) tiles vs the decoded video: asserted bound on the VAC render's PSNR (measured 49.3 dB here,
+# bench/results_tiles.md gives the bench clip's figure)
+JPEG_MIN_PSNR_DB = 45.0
+
+
+@pytest.fixture(scope="module")
+def clip(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    d = tmp_path_factory.mktemp("tiles")
+    path = write_coded_clip(d / "coded.mp4", frames=FRAMES, width_px=W, height_px=H, fps=25, gop=4, bframes=2)
+    path.with_suffix(".toml").write_text(
+        f'name = "coded"\nkind = "video"\npath = "{path.name}"\nrecording_altitude_m = {ALT_M}\n'
+        f"hfov_deg = {HFOV}\n",
+        encoding="utf-8",
+    )
+    return path
+
+
+@pytest.fixture(scope="module")
+def caches(clip: Path, tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+    d = tmp_path_factory.mktemp("caches")
+    out = {}
+    for codec in ("png", "raw", "jpeg"):
+        res = ingest_tiles(
+            str(clip.with_suffix(".toml")), out_dir=d / codec, codec=codec, show_progress=False
+        )
+        assert res.frames == FRAMES and res.disk_bytes > 0 and res.resumed_from == 0
+        out[codec] = res.folder
+    return out
+
+
+def _psnr(a: np.ndarray, b: np.ndarray) -> float:
+    mse = float(np.mean((a.astype(np.float64) - b) ** 2))
+    return math.inf if mse == 0.0 else 10.0 * math.log10(255.0**2 / mse)
+
+
+def _poses() -> list[tuple[tuple[float, float, float], tuple[float, float, float]]]:
+    rng = np.random.default_rng(3)
+    out = []
+    for _ in range(14):
+        z = float(rng.uniform(8.0, 140.0))
+        pos = (float(rng.uniform(-60, 60)), float(rng.uniform(-90, 90)), -z)
+        att = (float(rng.uniform(-0.4, 0.4)), float(rng.uniform(-0.4, 0.4)), float(rng.uniform(-3.1, 3.1)))
+        out.append((pos, att))
+    for z in (10.0, 40.0, 90.0, 200.0, 900.0):  # levels 0..6, straight down
+        out.append(((0.0, 0.0, -z), (0.0, 0.0, 0.3)))
+    out.append(((0.0, 0.0, -30.0), (0.0, 1.3, 0.0)))  # horizon in view: whole-frame fallback
+    out.append(((400.0, 0.0, -20.0), (0.0, 0.0, 0.0)))  # off the footage
+    return out
+
+
+def _compare(clip: Path, folder: Path, camera: CameraParams) -> tuple[float, set[int], Simulator]:
+    """Worst PSNR of tile-cache renders vs whole-frame renders of the video, over the poses and frames."""
+    tiled = Simulator(SimConfig(camera=camera), footage=str(folder))
+    plain = Simulator(
+        SimConfig(camera=camera),
+        footage=open_footage(str(clip), altitude_m=ALT_M, hfov_deg=HFOV),
+        region_render=False,
+    )
+    assert isinstance(tiled.footage, TileSource)
+    worst, levels = math.inf, set()
+    try:
+        for k, (pos, att) in enumerate(_poses()):
+            for sim in (tiled, plain):
+                sim.reset(seed=k, pos_ned_m=pos, yaw_rad=att[2])
+            s = replace(tiled.state, att_rpy_rad=np.array(att), time_s=0.04 * (k % FRAMES))
+            a, b = tiled.render(s, wall_time_s=1.0), plain.render(s, wall_time_s=1.0)
+            assert a.meta == replace(b.meta, frame_counter=a.meta.frame_counter)
+            worst = min(worst, _psnr(a.image_bgr, b.image_bgr))
+            if tiled._region is not None and tiled._region.filled_level >= 0:
+                levels |= tiled._region.filled_levels
+        return worst, levels, tiled
+    finally:
+        tiled.close()
+        plain.close()
+
+
+@pytest.mark.parametrize("codec", ["png", "raw"])
+def test_lossless_tiles_render_bit_identical_to_the_video(
+    clip: Path, caches: dict[str, Path], codec: str
+) -> None:
+    cam = CameraParams(width_px=200, height_px=150, hfov_deg=HFOV)
+    worst, levels, sim = _compare(clip, caches[codec], cam)
+    assert worst == math.inf  # every pixel equal
+    assert {0, 1, 2, 3} <= levels  # region renders from several levels (and blended pairs)
+    assert sim.region_renders >= 15 and sim.full_renders >= 1
+
+
+def test_jpeg_tiles_render_within_the_stated_psnr(clip: Path, caches: dict[str, Path]) -> None:
+    cam = CameraParams(width_px=200, height_px=150, hfov_deg=HFOV)
+    worst, _, _ = _compare(clip, caches["jpeg"], cam)
+    print(f"jpeg q95 tiles: worst render PSNR {worst:.1f} dB vs the video")
+    assert worst >= JPEG_MIN_PSNR_DB
+
+
+def test_tile_source_frames_equal_the_video_and_the_lru_is_capped(
+    clip: Path, caches: dict[str, Path]
+) -> None:
+    video = open_footage(str(clip), altitude_m=ALT_M, hfov_deg=HFOV)
+    src = open_footage(str(caches["raw"]))
+    try:
+        assert isinstance(src, TileSource)
+        assert src.frame_count == video.frame_count == FRAMES and src.fps == video.fps
+        assert src.geometry == video.geometry
+        for i in range(FRAMES):
+            assert np.array_equal(src.frame(i), video.frame(i))
+            lazy = LazyPyramid(np.ascontiguousarray(video.frame(i)))
+            assert np.array_equal(src.frame(i, level=3), lazy.level(3))
+            assert np.array_equal(src.region(i, 1, 100, 50, 333, 301), lazy.level(1)[50:301, 100:333])
+        assert src.cache.lru_bytes <= src.cache.cache_bytes
+    finally:
+        src.close()
+        video.close()
+    small = TileSource(src.metadata, caches["raw"], lambda w, h: video.geometry, cache_bytes=1 << 20)
+    try:
+        for i in range(FRAMES):
+            small.frame(i)
+            assert small.cache.lru_bytes <= 1 << 20
+        assert small.cache.tiles_decoded > 0
+    finally:
+        small.close()
+
+
+def _frames(clip: Path, n: int, fail_after: int | None = None) -> Iterator[np.ndarray]:
+    with open_footage(str(clip), altitude_m=ALT_M, hfov_deg=HFOV) as v:
+        for i in range(n):
+            if fail_after is not None and i == fail_after:
+                raise KeyboardInterrupt  # as a Ctrl-C / kill between frames
+            yield np.ascontiguousarray(v.frame(i))
+
+
+def test_an_interrupted_build_resumes_and_ends_byte_identical(clip: Path, tmp_path: Path) -> None:
+    args = dict(frame_count=FRAMES, width_px=W, height_px=H, fps=25.0, codec="jpeg", show_progress=False)
+    fresh = build_tiles(_frames(clip, FRAMES), folder=tmp_path / "fresh", **args)  # type: ignore[arg-type]
+    with pytest.raises(KeyboardInterrupt):
+        build_tiles(_frames(clip, FRAMES, fail_after=5), folder=tmp_path / "cut", **args)  # type: ignore[arg-type]
+    tdir = tmp_path / "cut" / "tiles"
+    assert json.loads((tdir / "progress.json").read_text())["frames_done"] == COMMIT_FRAMES
+    with open(tdir / "pack-000.bin", "ab") as f:
+        f.write(b"half a tile written when the process died")
+    with pytest.raises(FootageError, match="unfinished build"):
+        TileSource(
+            fresh_meta(clip), tmp_path / "cut", lambda w, h: FootageGeometry.from_fov(w, h, ALT_M, HFOV)
+        )
+    res = build_tiles(_frames(clip, FRAMES), folder=tmp_path / "cut", **args)  # type: ignore[arg-type]
+    assert res.resumed_from == COMMIT_FRAMES and res.disk_bytes == fresh.disk_bytes
+    for name in ("index.bin", "pack-000.bin"):
+        assert (tdir / name).read_bytes() == (tmp_path / "fresh" / "tiles" / name).read_bytes()
+
+
+def fresh_meta(clip: Path):  # type: ignore[no-untyped-def]
+    from viva_sitl.footage import resolve_metadata
+
+    return resolve_metadata(str(clip.with_suffix(".toml")))
+
+
+def test_cli_builds_reports_size_and_refuses_beyond_the_bound(
+    clip: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    toml = str(clip.with_suffix(".toml"))
+    out = tmp_path / "t"
+    rc = footage_main(["ingest", toml, "--tiles", "--out", str(out), "--max-frames", "2", "--no-progress"])
+    assert rc == 0 and "tiled 2 frames into" in capsys.readouterr().out
+    with open_footage(str(out)) as src:
+        assert isinstance(src, TileSource) and src.frame_count == 2
+    rc = footage_main(
+        ["ingest", toml, "--tiles", "--out", str(tmp_path / "p"), "--tile-codec", "png", "--max-size", "0.5",
+         "--no-progress"]
+    )  # fmt: skip
+    err = capsys.readouterr().err.strip()
+    assert rc == 2 and len(err.splitlines()) == 1 and "--max-size" in err
+    # jpeg: a bound below q95's size but above q50's picks a lower quality
+    q95 = ingest_tiles(toml, out_dir=tmp_path / "q", max_frames=2, show_progress=False)
+    res = ingest_tiles(
+        toml, out_dir=tmp_path / "b", max_frames=2, show_progress=False, max_bytes=int(q95.disk_bytes * 0.7)
+    )
+    assert res.quality < 95 and res.disk_bytes <= q95.disk_bytes * 0.7
+
+
+def _copy(src: Path, dst: Path) -> Path:
+    shutil.copytree(src, dst)
+    return dst
+
+
+def test_corrupt_caches_give_one_clear_error_never_a_wrong_image(
+    caches: dict[str, Path], tmp_path: Path
+) -> None:
+    base = caches["jpeg"]
+
+    def fails(folder: Path, match: str, render: bool = False) -> None:
+        with pytest.raises(FootageError, match=match) as e:
+            sim = Simulator(SimConfig(camera=CameraParams(width_px=160, height_px=120)), footage=str(folder))
+            try:
+                for z in (15.0, 40.0, 90.0, 300.0):
+                    for t in range(FRAMES):
+                        sim.reset(seed=0, pos_ned_m=(0.0, 0.0, -z))
+                        sim.render(replace(sim.state, time_s=0.04 * t))
+                sim.footage.frame(0)
+            finally:
+                sim.close()
+        msg = str(e.value)
+        assert "\n" not in msg and "footage ingest --tiles" in msg
+
+    # truncated pack file
+    d = _copy(base, tmp_path / "trunc")
+    pack = d / "tiles" / "pack-000.bin"
+    pack.write_bytes(pack.read_bytes()[: pack.stat().st_size // 2])
+    fails(d, "truncated")
+    # missing pack
+    d = _copy(base, tmp_path / "nopack")
+    (d / "tiles" / "pack-000.bin").unlink()
+    fails(d, "missing")
+    # one tile's bytes changed (same length): its checksum
+    d = _copy(base, tmp_path / "flip")
+    data = bytearray(pack.read_bytes() if False else (d / "tiles" / "pack-000.bin").read_bytes())
+    for off in range(1000, len(data), 997):
+        data[off] ^= 0x55
+    (d / "tiles" / "pack-000.bin").write_bytes(bytes(data))
+    fails(d, "checksum")
+    # a level missing: meta.json lists one level fewer
+    d = _copy(base, tmp_path / "level")
+    meta = json.loads((d / "tiles" / "meta.json").read_text())
+    meta["levels"] = meta["levels"][:-1]
+    (d / "tiles" / "meta.json").write_text(json.dumps(meta))
+    fails(d, "levels")
+    # a level's tiles missing from the index
+    d = _copy(base, tmp_path / "holes")
+    idx = np.fromfile(d / "tiles" / "index.bin", np.uint8)
+    idx[24 * 40 : 24 * 60] = 0
+    idx.tofile(d / "tiles" / "index.bin")
+    fails(d, "missing tiles")
+    # index of the wrong size
+    d = _copy(base, tmp_path / "index")
+    (d / "tiles" / "index.bin").write_bytes((d / "tiles" / "index.bin").read_bytes()[:-7])
+    fails(d, "index.bin")
+    # meta.json garbage
+    d = _copy(base, tmp_path / "meta")
+    (d / "tiles" / "meta.json").write_text("{not json")
+    fails(d, "meta.json")
+
+
+# --- trilinear anti-aliasing -------------------------------------------------------------------------------------
+
+
+def _texture(h: int, w: int, seed: int) -> np.ndarray:
+    """Detail at every scale: sums of random-phase gratings plus noise."""
+    rng = np.random.default_rng(seed)
+    y, x = np.mgrid[0:h, 0:w].astype(np.float32)
+    img = np.zeros((h, w, 3), np.float32)
+    for period in (3.0, 5.0, 9.0, 17.0, 40.0, 110.0):
+        for c in range(3):
+            a = rng.uniform(0, math.pi)
+            img[..., c] += np.sin(
+                (x * math.cos(a) + y * math.sin(a)) * 2 * math.pi / period + rng.uniform(0, 6)
+            )
+    img = 128 + 18 * img + rng.normal(0, 10, img.shape)
+    return np.clip(img, 0, 255).astype(np.uint8)
+
+
+def test_trilinear_beats_the_plain_warp_at_every_footprint_ratio() -> None:
+    img = _texture(1080, 1920, seed=4)
+    geom = FootageGeometry.from_fov(1920, 1080, 200.0, HFOV)
+    cam = CameraParams(width_px=160, height_px=120, hfov_deg=HFOV)
+    tri, mip, plain = (
+        Renderer(cam, geom),
+        Renderer(replace(cam, trilinear=False), geom),
+        Renderer(replace(cam, antialias=False), geom),
+    )
+    pyr = LazyPyramid(img)
+    rows = []
+    for z in np.geomspace(25.0, 190.0, 12):  # 1.5 to 11 footage px per VAC px
+        pos, att = (3.0, -4.0, -float(z)), (0.02, -0.03, 0.4)
+        a = tri.render(pyr, pos, att)
+        k = 8  # reference: 8x8 supersampled warp, area-averaged
+        t = np.array([[k, 0, (k - 1) / 2], [0, k, (k - 1) / 2], [0, 0, 1]], np.float64)
+        big = cv2.warpPerspective(
+            img, t @ a.homography, (cam.width_px * k, cam.height_px * k), flags=cv2.INTER_LINEAR
+        )
+        ref = cv2.resize(big, (cam.width_px, cam.height_px), interpolation=cv2.INTER_AREA)
+        p_tri = _psnr(a.image_bgr, ref)
+        p_mip = _psnr(mip.render(pyr, pos, att).image_bgr, ref)
+        p_plain = _psnr(plain.render(img, pos, att).image_bgr, ref)
+        rows.append((a.footage_px_per_vac_px, p_tri, p_mip, p_plain))
+    for rho, p_tri, _, p_plain in rows:
+        assert p_tri >= p_plain, (rho, p_tri, p_plain)
+    assert float(np.mean([r[1] - r[2] for r in rows])) > 0.5  # and better than one mip level on average
+
+
+def test_a_killed_ingest_process_resumes_on_rerun(tmp_path: Path) -> None:
+    """`viva-sitl footage ingest --tiles` SIGKILLed mid-way: the rerun continues after the last committed frame and
+    ends with the same cache as an uninterrupted build."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    frames = 24
+    clip = write_coded_clip(
+        tmp_path / "k.mp4", frames=frames, width_px=W, height_px=H, fps=25, gop=4, bframes=0
+    )
+    toml = clip.with_suffix(".toml")
+    toml.write_text(
+        f'name = "k"\nkind = "video"\npath = "{clip.name}"\nrecording_altitude_m = {ALT_M}\nhfov_deg = {HFOV}\n',
+        encoding="utf-8",
+    )
+    repo = Path(__file__).resolve().parents[1]
+    env = {**os.environ, "PYTHONPATH": str(repo)}
+
+    def cmd(out: Path) -> list[str]:
+        return [sys.executable, "-m", "viva_sitl", "footage", "ingest", str(toml), "--tiles", "--tile-codec", "png",
+                "--out", str(out), "--no-progress"]  # fmt: skip
+
+    out = tmp_path / "killed"
+    proc = subprocess.Popen(cmd(out), env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    progress = out / "tiles" / "progress.json"
+    deadline = time.monotonic() + 120.0
+    done = 0
+    while time.monotonic() < deadline and proc.poll() is None:
+        try:
+            done = int(json.loads(progress.read_text())["frames_done"])
+        except (OSError, ValueError, KeyError):
+            done = 0
+        if done >= 2 * COMMIT_FRAMES:
+            break
+        time.sleep(0.01)  # polling a file the other process writes (the condition is checked above)
+    assert proc.poll() is None, "the build ended before it could be killed"
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    assert 0 < done < frames and not (out / "footage.toml").exists()
+    with pytest.raises(FootageError, match="folder without footage.toml|not an ingest cache"):
+        open_footage(str(out))
+    r = subprocess.run(cmd(out), env=env, capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    assert f"tiled {frames} frames" in r.stdout and "resumed after frame" in r.stdout
+    fresh = subprocess.run(cmd(tmp_path / "fresh"), env=env, capture_output=True, text=True, timeout=300)
+    assert fresh.returncode == 0, fresh.stderr
+    for name in ("index.bin", "pack-000.bin"):
+        assert (out / "tiles" / name).read_bytes() == (tmp_path / "fresh" / "tiles" / name).read_bytes()
+    with open_footage(str(out)) as src, open_footage(str(clip), altitude_m=ALT_M, hfov_deg=HFOV) as video:
+        assert isinstance(src, TileSource)
+        for i in (0, done, frames - 1):
+            assert np.array_equal(src.frame(i), video.frame(i))
