@@ -9,6 +9,8 @@ Scenarios (each after a take-off to 5 m, 250 Hz EAV, no disturbance):
     offboard_vel  OFFBOARD velocity setpoints streamed at 20 Hz (set_position_target cost included)
     offboard_att  OFFBOARD attitude + thrust at 50 Hz
     geofence      hold with an `inside` callback (FootageGeometry-like rectangle test, run at 10 Hz)
+    fence_poly    hold with an uploaded 64-vertex inclusion polygon + 2 exclusion circles (checked at 10 Hz)
+    orbit         ORBIT mode: 15 m radius at 3 m/s (orbit.py setpoint generator)
 The EAV step (viva_sitl.dynamics.step) is timed alongside as the reference: the autopilot should cost the same order.
 Printed: median µs per update, median µs per EAV step, ratio, and the CPU share at 250 Hz (update µs * 250 / 1e6).
 """
@@ -16,6 +18,7 @@ Printed: median µs per update, median µs per EAV step, ratio, and the CPU shar
 from __future__ import annotations
 
 import argparse
+import math
 import platform
 import statistics
 import time
@@ -30,6 +33,7 @@ from viva_sitl.autopilot import (
     ParamStore,
     PositionTarget,
 )
+from viva_sitl.autopilot.geofence import CircleFence, Geofence, PolygonFence
 from viva_sitl.dynamics import EavCommand, EavParams, EavState, quat_from_euler, step
 
 Setup = Callable[[Autopilot, float], None]
@@ -57,6 +61,21 @@ def _mission(ap: Autopilot, now: float) -> None:
     ap.set_mode(now, FlightMode.AUTO_MISSION)
 
 
+def _fence_poly(ap: Autopilot, now: float) -> None:
+    verts = tuple(
+        (200.0 * math.cos(2 * math.pi * i / 64), 200.0 * math.sin(2 * math.pi * i / 64)) for i in range(64)
+    )
+    circles = (
+        CircleFence((50.0, 50.0), 10.0, inclusion=False),
+        CircleFence((-50.0, 50.0), 10.0, inclusion=False),
+    )
+    ap.set_geofence(Geofence(polygons=(PolygonFence(verts),), circles=circles))
+
+
+def _orbit(ap: Autopilot, now: float) -> None:
+    ap.orbit(now, 15.0, 3.0, 0, (10.0, 0.0), None)
+
+
 def _vel_stream(ap: Autopilot, now: float, k: int) -> None:
     if k % 12 == 0:  # 250 / 12 ~ 20 Hz
         ap.set_position_target(now, PositionTarget(vel_ned_m_s=(1.0, 0.5, 0.0), yaw_rad=0.3))
@@ -81,6 +100,8 @@ SCENARIOS: dict[str, tuple[Setup | None, PerStep | None, bool]] = {
     "offboard_vel": (_offboard(_vel_stream), _vel_stream, False),
     "offboard_att": (_offboard(_att_stream), _att_stream, False),
     "geofence": (None, None, True),
+    "fence_poly": (_fence_poly, None, False),
+    "orbit": (_orbit, None, False),
 }
 
 

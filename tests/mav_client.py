@@ -13,6 +13,7 @@ import threading
 import time
 from collections import deque
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 from pymavlink.dialects.v20 import common as mavlink2
@@ -29,8 +30,10 @@ class VehicleThread:
     `with VehicleThread(config) as vt:` starts both and stops them on exit; `vt.call(fn)` runs fn on the loop.
     """
 
-    def __init__(self, config: MavlinkConfig, speed: float = 1.0, camera: CameraLink | None = None) -> None:
+    def __init__(self, config: MavlinkConfig, speed: float = 1.0, camera: CameraLink | None = None,
+                 footage: str | Path | None = None) -> None:  # fmt: skip
         self.config = config
+        self.footage = footage  # None: no footage edge (SelftestVehicle)
         self.speed = speed
         self.camera = camera
         self.vehicle: SelftestVehicle | None = None
@@ -51,7 +54,7 @@ class VehicleThread:
     async def _main(self) -> None:
         self._loop = asyncio.get_running_loop()
         self._stop = asyncio.Event()
-        self.vehicle = SelftestVehicle(speed=self.speed, camera=self.camera)
+        self.vehicle = SelftestVehicle(speed=self.speed, camera=self.camera, footage=self.footage)
         self.endpoint = MavlinkEndpoint(self.vehicle, self.config)
         self.vehicle.step_hooks.append(self.endpoint.on_sim_step)
         self.vehicle.start()

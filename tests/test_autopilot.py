@@ -175,7 +175,7 @@ def test_arming_checks() -> None:
     bare = Autopilot(ParamStore(), EavParams())
     out = bare.arm(0.0)
     assert out.result == CommandResult.TEMPORARILY_REJECTED  # no state yet
-    f = Flight(inside=lambda n, e: n < 5.0)
+    f = Flight(inside=lambda n, e: n < 5.0, SIM_FTG_FENCE=2)  # the footage edge as a hard fence (Hold)
     f.run(0.1)
     assert f.ap.set_mode(f.t, FlightMode.AUTO_MISSION).result == CommandResult.TEMPORARILY_REJECTED
     assert f.ap.set_mode(f.t, FlightMode.OFFBOARD).result == CommandResult.TEMPORARILY_REJECTED
@@ -385,7 +385,7 @@ def test_mission_do_change_speed_and_hold_at_end() -> None:
 
 
 def test_mission_rejections() -> None:
-    f = Flight(inside=lambda n, e: abs(n) < 50 and abs(e) < 50)
+    f = Flight(inside=lambda n, e: abs(n) < 50 and abs(e) < 50, SIM_FTG_FENCE=2)
     f.run(0.1)
     assert f.ap.set_mission([item(1, MissionCommand.NAV_WAYPOINT, 1, 1, -3)]).result == CommandResult.DENIED
     out = f.ap.set_mission([item(0, MissionCommand.NAV_WAYPOINT, 80.0, 0.0, -3.0)])
@@ -417,13 +417,13 @@ def test_rtl_returns_home_and_lands(eav: EavParams) -> None:
 
 # --- geofence, link loss, manual ------------------------------------------------------------
 def test_geofence_trips_when_flying_out_and_holds_inside() -> None:
-    f = Flight(inside=lambda n, e: n < 10.0)
+    f = Flight(inside=lambda n, e: n < 10.0, SIM_FTG_FENCE=2)
     f.take_off()
     stream(f, PositionTarget(vel_ned_m_s=(3.0, 0.0, 0.0)))
     f.run(1.0)
     assert f.ap.set_mode(f.t, FlightMode.OFFBOARD).ok
     f.run(10.0, until=lambda f: f.ap.mode != FlightMode.OFFBOARD)
-    assert f.ap.mode == FlightMode.AUTO_LOITER  # GF_ACTION 2 = Hold
+    assert f.ap.mode == FlightMode.AUTO_LOITER  # SIM_FTG_FENCE 2 = Hold
     assert any("Geofence" in t for t in f.texts())
     f.each = None
     f.run(6.0)
@@ -431,7 +431,7 @@ def test_geofence_trips_when_flying_out_and_holds_inside() -> None:
 
 
 def test_geofence_action_rtl() -> None:
-    f = Flight(inside=lambda n, e: n < 6.0, GF_ACTION=3, RTL_RETURN_ALT=3.0)
+    f = Flight(inside=lambda n, e: n < 6.0, SIM_FTG_FENCE=3, RTL_RETURN_ALT=3.0)
     f.take_off()
     assert f.ap.reposition(f.t, 5.5, 0.0, -2.5, None).ok
     stream(f, PositionTarget(vel_ned_m_s=(2.0, 0.0, 0.0)))
@@ -439,6 +439,32 @@ def test_geofence_action_rtl() -> None:
     assert f.ap.set_mode(f.t, FlightMode.OFFBOARD).ok
     f.run(5.0, until=lambda f: f.ap.mode != FlightMode.OFFBOARD)
     assert f.ap.mode == FlightMode.AUTO_RTL
+
+
+def test_footage_edge_default_warns_once_per_exit_and_flies_on() -> None:
+    # SIM_FTG_FENCE default 1: a warning per exit, nothing refused, the vehicle keeps flying beyond the footage
+    f = Flight(inside=lambda n, e: n < 6.0)
+    f.take_off()
+    assert f.ap.reposition(f.t, 20.0, 0.0, -2.5, None).ok  # target beyond the footage: accepted
+    f.run(15.0, until=lambda f: f.pos[0] > 19.0)
+    assert f.ap.mode == FlightMode.AUTO_LOITER and f.pos[0] > 19.0
+    assert f.ap.reposition(f.t, 0.0, 0.0, -2.5, None).ok
+    f.run(15.0, until=lambda f: f.pos[0] < 1.0)
+    assert f.ap.reposition(f.t, 20.0, 0.0, -2.5, None).ok
+    f.run(15.0, until=lambda f: f.pos[0] > 19.0)
+    warnings = [t for t in f.texts() if "outside the footage" in t.lower()]
+    assert len(warnings) == 2, f.texts()  # two exits, two warnings
+    assert f.ap.set_mission([item(0, MissionCommand.NAV_WAYPOINT, 40.0, 0.0, -3.0)]).ok
+
+
+def test_footage_edge_land_action() -> None:
+    f = Flight(inside=lambda n, e: n < 6.0, SIM_FTG_FENCE=5)
+    f.take_off()
+    stream(f, PositionTarget(vel_ned_m_s=(2.0, 0.0, 0.0)))
+    f.run(1.0)
+    assert f.ap.set_mode(f.t, FlightMode.OFFBOARD).ok
+    f.run(8.0, until=lambda f: f.ap.mode != FlightMode.OFFBOARD)
+    assert f.ap.mode == FlightMode.AUTO_LAND and 5.0 < f.pos[0] < 9.0
 
 
 def test_gcs_link_loss_per_nav_dll_act() -> None:

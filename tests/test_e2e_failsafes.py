@@ -1,4 +1,4 @@
-"""End to end, PX4's failsafes over MAVLink: offboard loss (COM_OF_LOSS_T), the footage edge as geofence (GF_ACTION),
+"""End to end, PX4's failsafes over MAVLink: offboard loss (COM_OF_LOSS_T), the footage edge as a fence (SIM_FTG_FENCE),
 ground-station link loss (NAV_DLL_ACT). Driven in-test with pymavlink on the GCS link."""
 
 from __future__ import annotations
@@ -115,6 +115,7 @@ def test_footage_edge_geofence_holds_inside_and_refuses_outside_missions(
     sitl = sitl_factory(footage=str(finite))
     peer = peer_factory(sitl.ports.gcs)
     peer.wait_autopilot()
+    assert peer.set_param_int("SIM_FTG_FENCE", 2) == 2  # the footage edge as a hard fence: Hold
     lat0, lon0 = home_of(peer)
 
     def waypoint(seq: int, north_m: float) -> Any:
@@ -134,7 +135,7 @@ def test_footage_edge_geofence_holds_inside_and_refuses_outside_missions(
     )
     streamer = enter_offboard(peer, north)
     try:
-        autopilot_mode(peer, MODE_AUTO_LOITER, 60.0, "Hold at the footage edge (GF_ACTION 2)")
+        autopilot_mode(peer, MODE_AUTO_LOITER, 60.0, "Hold at the footage edge (SIM_FTG_FENCE 2)")
     finally:
         streamer.stop()
     wait_warning(peer, t0, "a geofence breach warning", about="geofence")

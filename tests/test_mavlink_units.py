@@ -186,8 +186,20 @@ def test_mission_frames_convert_to_ned() -> None:
     with pytest.raises(ItemError) as err:
         wire_to_item(_wire(M.MAV_FRAME_BODY_FRD, wp, 0, 0, 1.0), v)
     assert err.value.result == M.MAV_MISSION_UNSUPPORTED_FRAME
+    assert rel6.alt_rel_home_m == 12.5 and math.isnan(amsl.alt_rel_home_m)  # resolved when the item starts
+    jump = wire_to_item(_wire(M.MAV_FRAME_MISSION, 177, 0, 0, 0.0), v)
+    assert jump.command == MissionCommand.DO_JUMP and jump.param2 == 2.0
+    vtol = wire_to_item(_wire(M.MAV_FRAME_MISSION, M.MAV_CMD_DO_VTOL_TRANSITION, 0, 0, 0.0), v)
+    assert (
+        vtol.command == MissionCommand.OTHER and vtol.raw_command == M.MAV_CMD_DO_VTOL_TRANSITION
+    )  # skipped
     with pytest.raises(ItemError) as err:
-        wire_to_item(_wire(M.MAV_FRAME_GLOBAL, 177, 0, 0, 1.0), v)  # DO_JUMP
+        wire_to_item(_wire(M.MAV_FRAME_GLOBAL, 31999, 0, 0, 1.0), v)  # not a MAV_CMD
+    assert err.value.result == M.MAV_MISSION_UNSUPPORTED
+    with pytest.raises(ItemError) as err:
+        wire_to_item(
+            _wire(M.MAV_FRAME_GLOBAL, M.MAV_CMD_NAV_LOITER_TURNS, 0, 0, 1.0), v
+        )  # a NAV we cannot fly
     assert err.value.result == M.MAV_MISSION_UNSUPPORTED
     with pytest.raises(ItemError) as err:
         wire_to_item(_wire(M.MAV_FRAME_GLOBAL_INT, wp, 95 * 10**7, 0, 1.0), v)

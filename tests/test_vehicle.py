@@ -2,12 +2,16 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
-from viva_sitl.autopilot import FlightMode, ParamStore
+from viva_sitl.autopilot import FlightMode, MissionCommand, MissionItem, ParamStore
+from viva_sitl.camera import CameraParams, Mount
 from viva_sitl.config import ConfigError, SimConfig
 from viva_sitl.dynamics import EavParams, WindParams
+from viva_sitl.frame import RenderedFrame
 from viva_sitl.vehicle import Vehicle
 
 
@@ -63,7 +67,9 @@ def test_reset_reboots_the_autopilot_keeps_parameters_and_is_deterministic() -> 
 
 
 def test_air_start_and_custom_geofence() -> None:
-    with Vehicle(SimConfig(), geofence=lambda n, e: n < 5.0) as v:
+    strict = ParamStore()
+    strict.set("SIM_FTG_FENCE", 2)  # the footage edge as a hard fence: repositioning beyond it is refused
+    with Vehicle(SimConfig(), geofence=lambda n, e: n < 5.0, params=strict) as v:
         v.reset(pos_ned_m=(0.0, 0.0, -10.0))
         assert v.autopilot.armed and v.autopilot.mode == FlightMode.AUTO_LOITER
         v.step(int(round(2.0 / v.dt_s)))
@@ -88,3 +94,81 @@ def test_heavier_airframe_from_config_hovers_and_an_unliftable_one_is_refused() 
     with pytest.raises(ConfigError) as err:
         SimConfig.from_dict({"physics": {"mass_kg": 2.0, "max_thrust_n": 9.0}})
     assert "cannot lift" in str(err.value) and "\n" not in str(err.value)
+
+
+def _rot_zyx(roll: float, pitch: float, yaw: float) -> np.ndarray:
+    """Body FRD -> NED for ZYX Euler angles, written out here (an independent reference)."""
+    cr, sr, cp, sp, cy, sy = (
+        np.cos(roll),
+        np.sin(roll),
+        np.cos(pitch),
+        np.sin(pitch),
+        np.cos(yaw),
+        np.sin(yaw),
+    )
+    return np.array(
+        [
+            [cp * cy, sr * sp * cy - cr * sy, cr * sp * cy + sr * sy],
+            [cp * sy, sr * sp * sy + cr * cy, cr * sp * sy - sr * cy],
+            [-sp, sr * cp, cr * cp],
+        ]
+    )
+
+
+def _centre_ground_ne(frame: RenderedFrame) -> np.ndarray:
+    """Where the image centre's ray meets the ground, from the frame's own metadata (pose, camera in body)."""
+    m = frame.meta
+    optical_ned = _rot_zyx(*m.att_rpy_rad) @ np.asarray(m.cam_rot_body) @ np.array([0.0, 0.0, 1.0])
+    pos = np.asarray(m.pos_ned_m)
+    assert optical_ned[2] > 0.0, "the camera looks above the horizon"
+    return (pos + optical_ned * (-pos[2] / optical_ned[2]))[:2]
+
+
+@pytest.mark.parametrize("mount", [Mount.GIMBAL, Mount.FIXED])
+def test_mission_gimbal_item_pitches_the_rendered_view_of_a_gimbal_mount(mount: Mount) -> None:
+    cfg = SimConfig(camera=CameraParams(width_px=160, height_px=120, mount=mount))
+    nan = float("nan")
+    items = [
+        MissionItem(0, MissionCommand.NAV_TAKEOFF, nan, nan, -10.0),
+        MissionItem(1, MissionCommand.NAV_LOITER_TIME, 0.0, 0.0, -10.0, param1=6.0),
+        MissionItem(2, MissionCommand.DO_MOUNT_CONTROL, nan, nan, nan, param1=-45.0, param3=0.0),
+        MissionItem(3, MissionCommand.NAV_LOITER_TIME, 0.0, 0.0, -10.0, param1=30.0),
+    ]
+    with Vehicle(cfg, geofence=False) as v:
+        ap = v.autopilot
+        assert ap.set_mission(items).ok and ap.set_mode(v.time_s, FlightMode.AUTO_MISSION).ok
+        assert ap.arm(v.time_s).ok
+        while ap.mission_current_seq < 1 or v.state.altitude_m < 9.7:  # up, hovering at item 1
+            v.step(10)
+            assert v.time_s < 30.0
+        before = v.render()
+        pos = np.asarray(v.state.pos_ned_m)
+        assert _centre_ground_ne(before) == pytest.approx(pos[:2], abs=0.5)  # nadir: straight down
+        while ap.mission_current_seq < 3:
+            v.step(10)
+            assert v.time_s < 40.0
+        v.step(int(round(1.0 / v.dt_s)))
+        after = v.render()
+        pos, yaw = np.asarray(v.state.pos_ned_m), v.state.yaw_rad
+        ahead = np.array([np.cos(yaw), np.sin(yaw)])
+        shift = _centre_ground_ne(after) - pos[:2]
+        if mount is Mount.GIMBAL:  # pitched 45 deg below the horizon: the view centre is ~altitude ahead
+            assert ap.gimbal_pitch_yaw_deg == (-45.0, 0.0)
+            assert float(shift @ ahead) == pytest.approx(-pos[2], rel=0.1)
+            assert np.mean(np.abs(after.image_bgr.astype(int) - before.image_bgr.astype(int))) > 5.0
+        else:  # a fixed mount ignores gimbal items
+            assert np.hypot(*shift) < 0.5
+
+
+def test_config_params_make_the_footage_edge_strict(tmp_path: Path) -> None:
+    finite = tmp_path / "finite-synthetic.toml"  # a 204.8 m field: (150, 0) is beyond its edge
+    finite.write_text('name = "finite"\nkind = "synthetic"\n[synthetic]\nunbounded = false\n')
+    with Vehicle(SimConfig(), footage=finite) as v:  # default SIM_FTG_FENCE 1: warn only
+        v.reset(pos_ned_m=(150.0, 0.0, 0.0))
+        assert v.autopilot.arm(v.time_s).ok
+    strict = SimConfig.from_dict({"params": {"SIM_FTG_FENCE": 2}})  # as a trial's config would
+    with Vehicle(strict, footage=finite) as v:
+        v.reset(pos_ned_m=(150.0, 0.0, 0.0))
+        assert v.autopilot.arm(v.time_s).reason == "Arming denied: outside footage (geofence)"
+        v.reset(pos_ned_m=(50.0, 0.0, 0.0))
+        assert v.autopilot.arm(v.time_s).ok

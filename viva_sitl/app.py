@@ -137,7 +137,7 @@ class SitlApp:
 
     def _render_tick(self, tick: int) -> RenderedFrame:
         """Render thread: the VAC at the latest (frozen) state; wall time = when that state was produced."""
-        frame = self.sim.render(self.sim.state, wall_time_s=self.state_wall_time_s)
+        frame = self.vehicle.render(self.sim.state, wall_time_s=self.state_wall_time_s)  # gimbal applied
         self.last_frame = frame
         return frame
 

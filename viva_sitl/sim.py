@@ -19,6 +19,7 @@ decodes only the tiles under the footprint at the level(s) the renderer reads (t
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from concurrent.futures import Future, ThreadPoolExecutor
@@ -118,6 +119,19 @@ class Simulator:
         if prefetch and isinstance(self.footage, VideoSource) and self.footage.frame_count > 1:
             self._prefetcher = ThreadPoolExecutor(max_workers=1, thread_name_prefix="viva-sitl-prefetch")
         self.reset(self.config.seed)
+
+    def set_camera(self, camera: CameraParams) -> None:
+        """Replace the VAC's parameters (e.g. a gimbal's new mount angles); the next render uses them."""
+        if camera == self.camera:
+            return
+        intrinsics_same = dataclasses.replace(
+            camera, mount_roll_deg=0.0, mount_pitch_deg=0.0, mount_yaw_deg=0.0
+        ) == dataclasses.replace(self.camera, mount_roll_deg=0.0, mount_pitch_deg=0.0, mount_yaw_deg=0.0)
+        if intrinsics_same:
+            self.renderer.params = camera  # mount angles are read per render; K and the lens maps stay valid
+        else:
+            self.renderer = Renderer(camera, self.renderer.geometry)
+        self.camera = camera
 
     # --- geometry ------------------------------------------------------------------
     @property

@@ -18,9 +18,11 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Callable
+from dataclasses import replace
 from pathlib import Path
 
 from viva_sitl.autopilot import Autopilot, ParamStore
+from viva_sitl.camera import Mount
 from viva_sitl.config import SimConfig
 from viva_sitl.dynamics import EavCommand, EavParams, EavState
 from viva_sitl.footage import FootageSource
@@ -50,6 +52,9 @@ class Vehicle:
     ) -> None:
         self.config = config or SimConfig()
         self.sim = Simulator(self.config, footage, region_render=region_render, prefetch=prefetch)
+        self._mount_camera = (
+            self.sim.camera
+        )  # the camera as configured (a gimbal's angles are applied on top)
         self.params = params if params is not None else ParamStore()
         self.params.adopt("MAV_SYS_ID", self.config.mavlink.system_id)  # as PX4 SITL -i N
         for name, value in self.config.params:
@@ -129,7 +134,24 @@ class Vehicle:
 
     # --- camera --------------------------------------------------------------------------
     def render(self, state: EavState | None = None, wall_time_s: float | None = None) -> RenderedFrame:
+        """The VAC view; a `gimbal` mount first takes the angles the autopilot's gimbal items asked for."""
+        self.apply_gimbal()
         return self.sim.render(state, wall_time_s=wall_time_s)
+
+    def apply_gimbal(self) -> None:
+        """Point a `gimbal` camera mount where the mission's gimbal items (DO_MOUNT_CONTROL,
+        DO_GIMBAL_MANAGER_PITCHYAW) asked: MAVLink pitch -90 (down) is the nadir mount, 0 looks at the horizon
+        (pitch limited to [-90, 30] deg, a typical gimbal's range); yaw is relative to the nose, + right. Before any
+        such item, and for a fixed mount, the configured mount angles stay."""
+        base = self._mount_camera
+        want = self.autopilot.gimbal_pitch_yaw_deg
+        if base.mount is not Mount.GIMBAL or want is None:
+            camera = base
+        else:
+            pitch_deg = min(max(want[0], -90.0), 30.0)
+            camera = replace(base, mount_pitch_deg=pitch_deg + 90.0, mount_yaw_deg=want[1])
+        if camera != self.sim.camera:
+            self.sim.set_camera(camera)
 
     def inside_footage(self, north_m: float, east_m: float) -> bool:
         return self.sim.inside_footage(north_m, east_m)

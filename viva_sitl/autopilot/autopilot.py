@@ -5,7 +5,9 @@ Layout, along PX4's own seams (this class is the facade; each part is a module a
   commander.Commander         arming + pre-arm checks, mode transitions, commands, auto-disarm, failsafe actions
   failsafe.evaluate           pure failsafe evaluation: inputs + latched flags -> actions
   land_detector.LandDetector  ground contact, landed state, time on the ground
-  tasks.*                     one flight task per mode: hold, takeoff, land, rtl, mission, offboard, manual
+  tasks.*                     one flight task per mode: hold, takeoff, land, rtl, mission, offboard, orbit, manual
+  geofence / orbit / payload / mission   pure logic: fence geometry + breach + RTL destination, orbit geometry,
+                              camera and gimbal items + distance trigger, mission validation + DO_JUMP + altitudes
 
 CONTRACT (used by viva_sitl/mavlink and viva_sitl/app.py): keep these signatures; add, don't change.
 Every method takes `now_s` (simulation time, s) where time matters; the caller owns the clock.
@@ -25,10 +27,18 @@ Behaviour choices where PX4's is unclear or unsuitable (also in the README):
   (one set_*(), then start(), while MAVSDK's 20 Hz stream begins).
 - Offboard loss (COM_OF_LOSS_T): COM_OBL_RC_ACT; the RC-based choices 0..2 (Position/Altitude/Manual) fall back to
   Hold when no MANUAL_CONTROL is arriving, as PX4 v1.14's failsafe framework (default 0 -> Hold).
-- Geofence (footage edge, GF_ACTION, default 2 Hold): Hold holds at the last position that was still inside the
-  footage, so the camera sees footage again. Arming outside the footage, repositioning to or uploading a mission with
-  a waypoint outside it are refused.
-- DO_REPOSITION needs an armed vehicle in the air (landed: TEMPORARILY_REJECTED).
+- The footage edge is a fence the user chooses (SIM_FTG_FENCE, GF_ACTION's codes): 0 off, 1 warning (default: a
+  STATUSTEXT once per exit; unchanged PX4 code flies beyond the footage), 2 Hold (holds at the last position that was
+  still inside the footage, so the camera sees footage again), 3 Return, 4 Terminate, 5 Land. From 2 (Hold) up,
+  arming outside the footage, repositioning to or uploading a mission with a waypoint outside it are refused too.
+- The uploaded geofence (MISSION_TYPE_FENCE) and GF_MAX_HOR_DIST / GF_MAX_VER_DIST follow GF_ACTION (default Hold),
+  as PX4: arming outside it is refused (GF_ACTION != 0), a mission outside it is refused, a new fence invalidates a
+  stored mission outside it. RTL returns to the closest of home and the rally points (RTL_TYPE 0).
+- DO_REPOSITION needs an armed vehicle in the air (landed: TEMPORARILY_REJECTED). Without the change-mode flag
+  (MAV_DO_REPOSITION_FLAGS_CHANGE_MODE) it moves the Hold target only when already in Hold; otherwise the target is
+  kept and flown the next time Hold is entered (PX4's reposition triplet).
+- Orbit (DO_ORBIT or the mode) needs an armed vehicle in the air. Mission DO items never refuse a mission: DO_JUMP
+  and camera/gimbal items run, others are logged and skipped; relative altitudes resolve when the item starts.
 - Mission TAKEOFF items climb vertically at the current position (the item's horizontal position is ignored); a
   mission started on the ground without a TAKEOFF item first climbs to MIS_TAKEOFF_ALT (or the item's altitude).
 """
@@ -43,7 +53,9 @@ import numpy as np
 from viva_sitl.autopilot.commander import Commander
 from viva_sitl.autopilot.context import FlightContext, InsideFn
 from viva_sitl.autopilot.failsafe import battery_level, battery_warning
+from viva_sitl.autopilot.geofence import Geofence, RallyPoint
 from viva_sitl.autopilot.land_detector import LandDetector, Transition
+from viva_sitl.autopilot.orbit import Orbit
 from viva_sitl.autopilot.params import ParamStore
 from viva_sitl.autopilot.tasks import FlightTasks, OffboardKind, RtlPhase
 from viva_sitl.autopilot.types import (
@@ -54,6 +66,7 @@ from viva_sitl.autopilot.types import (
     ManualInput,
     MissionItem,
     Outcome,
+    PayloadAction,
     PositionTarget,
     Severity,
 )
@@ -150,8 +163,13 @@ class Autopilot:
         return self.commander.set_mode(now_s, mode)
 
     def reposition(self, now_s: float, north_m: float, east_m: float, down_m: float, yaw_rad: float | None,
-                   speed_m_s: float | None = None) -> Outcome:  # fmt: skip
-        return self.commander.reposition(now_s, north_m, east_m, down_m, yaw_rad, speed_m_s)
+                   speed_m_s: float | None = None, change_mode: bool = True) -> Outcome:  # fmt: skip
+        return self.commander.reposition(now_s, north_m, east_m, down_m, yaw_rad, speed_m_s, change_mode)
+
+    def orbit(self, now_s: float, radius_m: float, velocity_m_s: float, yaw_behaviour: float,
+              center_ne_m: tuple[float, float] | None, center_down_m: float | None) -> Outcome:  # fmt: skip
+        """MAV_CMD_DO_ORBIT: NaN radius/velocity/yaw behaviour keep the current orbit's (or PX4's defaults)."""
+        return self.commander.orbit(now_s, radius_m, velocity_m_s, yaw_behaviour, center_ne_m, center_down_m)
 
     def change_speed(self, now_s: float, speed_m_s: float) -> Outcome:
         """DO_CHANGE_SPEED: > 0 sets the auto cruise speed (clamped to MPC_XY_VEL_MAX); -1 no change; -2 default."""
@@ -173,6 +191,43 @@ class Autopilot:
 
     def set_mission_current(self, seq: int) -> Outcome:
         return self.tasks.mission.set_current(seq)
+
+    # --- geofence and rally plans (Commander), orbit and payload state (their tasks) ----
+    @property
+    def geofence(self) -> Geofence:
+        return self.ctx.geofence
+
+    @property
+    def rally_points(self) -> tuple[RallyPoint, ...]:
+        return self.ctx.rally
+
+    def set_geofence(self, fence: Geofence) -> Outcome:
+        """MISSION_TYPE_FENCE upload (already validated geometry); an empty Geofence clears it."""
+        return self.commander.set_geofence(fence)
+
+    def set_rally_points(self, points: Sequence[RallyPoint]) -> Outcome:
+        return self.commander.set_rally_points(points)
+
+    @property
+    def orbit_status(self) -> Orbit | None:
+        """The orbit flown now (ORBIT_EXECUTION_STATUS), None outside Orbit mode."""
+        return self.tasks.orbit.orbit if self.ctx.mode == FlightMode.ORBIT else None
+
+    @property
+    def orbit_approaching(self) -> bool:
+        """In Orbit mode, still flying to the circle."""
+        return self.tasks.orbit.approaching
+
+    @property
+    def gimbal_pitch_yaw_deg(self) -> tuple[float, float] | None:
+        """Last gimbal (pitch, yaw) in degrees a mission item asked for (DO_MOUNT_CONTROL /
+        DO_GIMBAL_MANAGER_PITCHYAW; pitch 0 level, -90 down; yaw relative to the nose), None before any.
+        Vehicle.render applies it to a `gimbal` camera mount."""
+        return self.tasks.mission.gimbal_deg
+
+    def pop_payload_actions(self) -> list[PayloadAction]:
+        """Camera actions asked for by mission items / the distance trigger since the last call."""
+        return self.tasks.mission.pop_payload()
 
     # --- streams (ignored with a reason when NaN/inf or out of range; never raise) -----
     def set_position_target(self, now_s: float, target: PositionTarget) -> Outcome:
@@ -230,6 +285,9 @@ class Autopilot:
                 ctx.ctrl.reset()
                 ctx.yaw_sp = state.yaw_rad if math.isfinite(state.yaw_rad) else 0.0
                 cmd = EavCommand(0.0, 0.0, ctx.yaw_sp, eav.hover_thrust_n)
+        mission = self.tasks.mission
+        if ctx.armed and mission.trigger.update(float(state.pos_ned_m[0]), float(state.pos_ned_m[1])):
+            mission.payload.append(PayloadAction("capture_once"))
         ctx.battery.update(dt, cmd.thrust_n / eav.hover_thrust_n, ctx.armed, ctx.battery_cfg())
         self._check_battery()
         return cmd

@@ -1,6 +1,6 @@
 """Commander (PX4's commander module, reduced): arming and its pre-arm checks, mode transitions and their
-requirements, commands (takeoff, land, RTL, reposition, speed, mission start, home), auto-disarm, and carrying out
-the actions the failsafe evaluation asks for.
+requirements, commands (takeoff, land, RTL, reposition, orbit, speed, mission start, home, geofence and rally
+plans), auto-disarm, and carrying out the actions the failsafe evaluation asks for.
 
 Refusal mapping as PX4 Commander: arming refusals DENIED, mode-switch refusals TEMPORARILY_REJECTED.
 """
@@ -8,6 +8,8 @@ Refusal mapping as PX4 Commander: arming refusals DENIED, mode-switch refusals T
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
+from dataclasses import replace
 
 import numpy as np
 
@@ -22,7 +24,9 @@ from viva_sitl.autopilot.failsafe import (
     SwitchMode,
     evaluate,
 )
+from viva_sitl.autopilot.geofence import Geofence, RallyPoint
 from viva_sitl.autopilot.land_detector import LandDetector
+from viva_sitl.autopilot.orbit import apply_command
 from viva_sitl.autopilot.setpoints import MAX_ABS_POS_M, finite
 from viva_sitl.autopilot.tasks import MANUAL_MODES, FlightTasks
 from viva_sitl.autopilot.types import ACCEPTED, CommandResult, FlightMode, Outcome, Severity
@@ -32,7 +36,7 @@ MAX_TAKEOFF_ALT_M = 1000.0
 # Selecting them while disarmed is allowed (PX4 allows every mode change while disarmed); on disarming, the mode
 # returns to the last one the user selected that allows arming (PX4's UserModeIntention::onDisarm).
 PREVENTS_ARMING = frozenset({FlightMode.AUTO_LAND, FlightMode.AUTO_RTL})
-GEOFENCE_CHECK_S = 0.1  # the footage test runs at 10 Hz (it may be costly)
+GEOFENCE_CHECK_S = 0.1  # the footage and geofence tests run at 10 Hz (the footage test may be costly)
 
 
 def denied(reason: str) -> Outcome:
@@ -52,6 +56,7 @@ class Commander:
         self.gcs_seen = False
         self.gcs_last_s = -math.inf
         self._gf_next_check_s = -math.inf
+        self._fence_next_check_s = -math.inf
         self.mode_after_disarm = FlightMode.AUTO_LOITER  # the last user-selected mode that allows arming
 
     def _user_selected(self, mode: FlightMode) -> None:
@@ -67,8 +72,10 @@ class Commander:
         if not ctx.on_ground:
             return denied("Arming denied: vehicle not landed")
         pos = ctx.pos
-        if not ctx.is_inside(float(pos[0]), float(pos[1])):
+        if not ctx.footage_ok(float(pos[0]), float(pos[1])):
             return denied("Arming denied: outside footage (geofence)")
+        if ctx.params.get_int("GF_ACTION") != 0 and not ctx.fence_ok(float(pos[0]), float(pos[1])):
+            return denied("Arming denied: vehicle outside geofence")
         if ctx.battery_remaining <= ctx.params.get("BAT_CRIT_THR"):
             return denied("Arming denied: battery too low")
         mode = ctx.mode
@@ -112,6 +119,7 @@ class Commander:
             dll_lost=self.failsafe_flags.dll_lost,
             gf_outside=self.failsafe_flags.gf_outside,
             last_inside_ned_m=self.failsafe_flags.last_inside_ned_m,
+            fence_breached=self.failsafe_flags.fence_breached,
         )  # a new flight: manual-control loss may trigger again
         ctx.event(Severity.INFO, "Armed by external command")
         if ctx.mode == FlightMode.AUTO_MISSION:
@@ -194,6 +202,8 @@ class Commander:
             return rejected("Switching to Mission denied: no valid mission")
         if mode in MANUAL_MODES and not tasks.manual.fresh(now_s):
             return rejected(f"Switching to {mode.name} denied: no manual control (RC)")
+        if mode == FlightMode.ORBIT and (not ctx.armed or ctx.on_ground):
+            return rejected("Switching to Orbit denied: not flying")
         self._user_selected(mode)
         if mode == FlightMode.AUTO_TAKEOFF:
             if ctx.armed:
@@ -206,7 +216,8 @@ class Commander:
         return ACCEPTED
 
     def reposition(self, now_s: float, north_m: float, east_m: float, down_m: float, yaw_rad: float | None,
-                   speed_m_s: float | None = None) -> Outcome:  # fmt: skip
+                   speed_m_s: float | None = None, change_mode: bool = True) -> Outcome:  # fmt: skip
+        """DO_REPOSITION. Without the change-mode flag, outside Hold, the target is kept for the next Hold (PX4)."""
         ctx = self.ctx
         ctx.now_s = now_s
         if not ctx.armed:
@@ -227,13 +238,57 @@ class Commander:
             yaw_rad = None
         if speed_m_s is not None and not (math.isfinite(speed_m_s) and speed_m_s > 0.0):
             speed_m_s = None
-        if not ctx.is_inside(float(target[0]), float(target[1])):
+        if not ctx.footage_ok(float(target[0]), float(target[1])):
             return denied("Reposition denied: target outside footage")
+        hold = self.tasks.hold
+        if not change_mode and ctx.mode != FlightMode.AUTO_LOITER:
+            hold.pending = (target, yaw_rad, speed_m_s)
+            return ACCEPTED
+        hold.pending = None
         self._user_selected(FlightMode.AUTO_LOITER)
         self.tasks.enter(FlightMode.AUTO_LOITER, now_s)
         self.tasks.hold.hold_at(target, yaw_rad)
         if speed_m_s is not None:
             ctx.speed_override = min(speed_m_s, ctx.params.get("MPC_XY_VEL_MAX"))
+        return ACCEPTED
+
+    def orbit(self, now_s: float, radius_m: float, velocity_m_s: float, yaw_behaviour: float,
+              center_ne_m: tuple[float, float] | None, center_down_m: float | None) -> Outcome:  # fmt: skip
+        """MAV_CMD_DO_ORBIT: NaN radius/velocity/yaw behaviour keep the current orbit's (or PX4's defaults)."""
+        ctx, task = self.ctx, self.tasks.orbit
+        ctx.now_s = now_s
+        if not ctx.armed:
+            return denied("Orbit denied: vehicle not armed")
+        if ctx.on_ground:
+            return rejected("Orbit denied: landed, take off first")
+        if center_ne_m is not None and not finite(*center_ne_m):
+            center_ne_m = None
+        pos = ctx.pos
+        prev = task.orbit if ctx.mode == FlightMode.ORBIT else None
+        if prev is None and center_ne_m is None:
+            center_ne_m = (float(pos[0]), float(pos[1]))
+        try:
+            orbit = apply_command(prev, pos, ctx.yaw, radius_m, velocity_m_s, yaw_behaviour, center_ne_m,
+                                  center_down_m, ctx.params.get("MC_ORBIT_RAD_MAX"))  # fmt: skip
+        except ValueError as e:
+            return denied(str(e))
+        if ctx.mode != FlightMode.ORBIT:
+            self._user_selected(FlightMode.ORBIT)
+            self.tasks.enter(FlightMode.ORBIT, now_s)
+        task.set(orbit)
+        return ACCEPTED
+
+    def set_geofence(self, fence: Geofence) -> Outcome:
+        """MISSION_TYPE_FENCE upload (geometry already validated); an empty Geofence clears it. The stored mission is
+        checked again (PX4: one with a waypoint outside the new fence is no longer startable)."""
+        self.ctx.geofence = fence
+        self.failsafe_flags = replace(self.failsafe_flags, fence_breached=False)
+        self._fence_next_check_s = -math.inf
+        self.tasks.mission.revalidate()
+        return ACCEPTED
+
+    def set_rally_points(self, points: Sequence[RallyPoint]) -> Outcome:
+        self.ctx.rally = tuple(points)
         return ACCEPTED
 
     def change_speed(self, now_s: float, speed_m_s: float) -> Outcome:
@@ -281,6 +336,7 @@ class Commander:
                 rc_lost_handled=self.failsafe_flags.rc_lost_handled,
                 gf_outside=self.failsafe_flags.gf_outside,
                 last_inside_ned_m=self.failsafe_flags.last_inside_ned_m,
+                fence_breached=self.failsafe_flags.fence_breached,
             )
             self.ctx.event(Severity.INFO, "Data link regained")
 
@@ -289,9 +345,14 @@ class Commander:
         ctx, tasks = self.ctx, self.tasks
         pos = ctx.pos
         inside: bool | None = None
-        if ctx.inside is not None and now_s >= self._gf_next_check_s:
+        if ctx.footage_action() != 0 and now_s >= self._gf_next_check_s:
             self._gf_next_check_s = now_s + GEOFENCE_CHECK_S
             inside = ctx.is_inside(float(pos[0]), float(pos[1]))
+        fence: Geofence | None = None
+        if now_s >= self._fence_next_check_s:
+            self._fence_next_check_s = now_s + GEOFENCE_CHECK_S
+            fence = ctx.geofence
+        home = ctx.home
         inp = FailsafeInputs(
             now_s=now_s,
             mode=ctx.mode,
@@ -303,6 +364,8 @@ class Commander:
             gcs_last_s=self.gcs_last_s,
             inside=inside,
             pos_ned_m=(float(pos[0]), float(pos[1]), float(pos[2])),
+            geofence=fence,
+            home_ned_m=(float(home[0]), float(home[1]), float(home[2])),
         )
         self.failsafe_flags, actions = evaluate(inp, self.failsafe_flags, ctx.params)
         for action in actions:

@@ -16,6 +16,7 @@ from numpy.typing import NDArray
 
 from viva_sitl.autopilot.battery import Battery, BatteryConfig
 from viva_sitl.autopilot.control import Gains, PositionController
+from viva_sitl.autopilot.geofence import Geofence, RallyPoint
 from viva_sitl.autopilot.params import SIM_EAV_PARAMS, ParamStore
 from viva_sitl.autopilot.types import Event, FlightMode, Severity
 from viva_sitl.dynamics import EavParams, EavState
@@ -44,6 +45,10 @@ class FlightContext:
     cruise_override: float | None = None  # DO_CHANGE_SPEED (commands and mission items)
     speed_override: float | None = None  # DO_REPOSITION ground speed for the current hold target
     battery: Battery = field(default_factory=Battery)
+    geofence: Geofence = field(
+        default_factory=Geofence
+    )  # the uploaded fence (MISSION_TYPE_FENCE); empty = none
+    rally: tuple[RallyPoint, ...] = ()  # the uploaded rally points (MISSION_TYPE_RALLY)
     _eav_rev: int = -1
     _eav_cached: EavParams | None = None
     _bat_rev: int = -1
@@ -86,6 +91,19 @@ class FlightContext:
             return bool(self.inside(north_m, east_m))
         except Exception:
             return False
+
+    def footage_action(self) -> int:
+        """SIM_FTG_FENCE: what the footage edge does (GF_ACTION's codes; 0 off, 1 warn, 2 Hold ... 5 Land)."""
+        return self.params.get_int("SIM_FTG_FENCE") if self.inside is not None else 0
+
+    def footage_ok(self, north_m: float, east_m: float) -> bool:
+        """False only where the footage edge is a hard fence (SIM_FTG_FENCE >= 2, Hold or stricter) and the
+        camera at that point would not see footage: arming, repositioning and mission upload are refused there."""
+        return self.footage_action() < 2 or self.is_inside(north_m, east_m)
+
+    def fence_ok(self, north_m: float, east_m: float) -> bool:
+        """Inside the uploaded geofence (no fence: everywhere)."""
+        return self.geofence.empty or self.geofence.contains(north_m, east_m)
 
     def cruise(self) -> float:
         if self.speed_override is not None and self.mode == FlightMode.AUTO_LOITER:

@@ -3,14 +3,20 @@ the commander must take. No state is changed here: the latched flags come in and
 
 Checks, in order: offboard loss (COM_OF_LOSS_T -> COM_OBL_RC_ACT), manual control loss in manual modes
 (COM_RC_LOSS_T -> NAV_RCL_ACT, once per loss), ground-station link loss once a GCS was seen (COM_DL_LOSS_T ->
-NAV_DLL_ACT, in the air), the footage-edge geofence (GF_ACTION, once per exit, in the air), and the battery level
+NAV_DLL_ACT, in the air), the footage edge (SIM_FTG_FENCE, once per exit, in the air), the uploaded geofence and
+the GF_MAX_HOR_DIST / GF_MAX_VER_DIST cylinder (GF_ACTION, once per breach, in the air), and the battery level
 (BAT_LOW_THR / BAT_CRIT_THR, a warning once per crossing).
+
+SIM_FTG_FENCE and GF_ACTION share PX4's geofence action codes: 0 none, 1 warning, 2 Hold, 3 Return, 4 Terminate,
+5 Land. The footage edge defaults to 1 (a STATUSTEXT once per exit: unchanged PX4 code flies beyond the footage, the
+camera shows the fill there); Hold holds where the camera last saw footage.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
 
+from viva_sitl.autopilot.geofence import FenceLimits, Geofence, breach_reason
 from viva_sitl.autopilot.params import ParamStore
 from viva_sitl.autopilot.types import FlightMode, Severity
 
@@ -34,8 +40,10 @@ class FailsafeInputs:
     manual_fresh: bool  # MANUAL_CONTROL within COM_RC_LOSS_T
     gcs_seen: bool
     gcs_last_s: float
-    inside: bool | None  # the geofence test now; None: not evaluated this step
+    inside: bool | None  # the footage test now; None: not evaluated this step
     pos_ned_m: tuple[float, float, float]
+    geofence: Geofence | None = None  # the uploaded fence to test now; None: not evaluated this step
+    home_ned_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
 
 @dataclass(frozen=True)
@@ -46,6 +54,7 @@ class FailsafeFlags:
     rc_lost_handled: bool = False
     gf_outside: bool = False
     last_inside_ned_m: tuple[float, float, float] | None = None
+    fence_breached: bool = False  # the uploaded geofence / home cylinder
 
 
 @dataclass(frozen=True)
@@ -81,6 +90,7 @@ class Notify:
 Action = SwitchMode | ApplyFailsafe | HoldAt | Notify
 
 _OBL_TO_ACTION = {0: 1, 1: 1, 2: 1, 3: 2, 4: 3, 5: 1, 6: 5, 7: 6}  # COM_OBL_RC_ACT without RC -> action code
+_GF_TO_ACTION = {2: 1, 3: 2, 4: 5, 5: 3}  # GF_ACTION / SIM_FTG_FENCE (>= 2) -> failsafe action code
 _OBL_TO_MODE = {0: FlightMode.POSCTL, 1: FlightMode.ALTCTL, 2: FlightMode.STABILIZED}
 
 
@@ -112,23 +122,36 @@ def evaluate(inp: FailsafeInputs, flags: FailsafeFlags, p: ParamStore) -> tuple[
         out.append(Notify(Severity.CRITICAL, "Connection to ground station lost"))
         if inp.in_air and act in _NAV_ACTIONS:
             out.append(ApplyFailsafe(act, "no GCS", "GCS lost"))
-    # Geofence: the footage edge.
+    # The footage edge (SIM_FTG_FENCE).
     if inp.inside is True:
         flags = replace(flags, gf_outside=False, last_inside_ned_m=inp.pos_ned_m)
     elif inp.inside is False and not flags.gf_outside:
         flags = replace(flags, gf_outside=True)
-        act = p.get_int("GF_ACTION")
-        if inp.in_air and act >= 1:
+        act = p.get_int("SIM_FTG_FENCE")
+        if inp.in_air and act == 1:
+            out.append(Notify(Severity.WARNING, "Outside the footage: the camera sees no ground imagery"))
+        elif inp.in_air and act >= 2:
             out.append(Notify(Severity.CRITICAL, "Geofence breached: outside footage"))
             if act == 2:
                 last = flags.last_inside_ned_m
                 # hold where the camera still saw footage, at the current altitude
                 out.append(HoldAt(None if last is None else (last[0], last[1], inp.pos_ned_m[2])))
                 out.append(Notify(Severity.WARNING, "Failsafe activated (geofence): switching to Hold"))
-            elif act in (3, 5):
-                out.append(ApplyFailsafe({3: 2, 5: 3}[act], "geofence", "Geofence"))
-            elif act == 4:
-                out.append(ApplyFailsafe(5, "geofence", "Geofence"))
+            else:
+                out.append(ApplyFailsafe(_GF_TO_ACTION[act], "geofence", "Geofence"))
+    # The uploaded geofence and the home cylinder (GF_ACTION).
+    if inp.geofence is not None:
+        limits = FenceLimits(p.get("GF_MAX_HOR_DIST"), p.get("GF_MAX_VER_DIST"))
+        reason = breach_reason(inp.geofence, inp.pos_ned_m, inp.home_ned_m, limits)
+        if reason is None:
+            flags = replace(flags, fence_breached=False)
+        elif inp.in_air and not flags.fence_breached:
+            flags = replace(flags, fence_breached=True)
+            act = p.get_int("GF_ACTION")
+            if act >= 1:
+                out.append(Notify(Severity.CRITICAL, f"Geofence breached: {reason}"))
+            if act >= 2:
+                out.append(ApplyFailsafe(_GF_TO_ACTION[act], "geofence", "Geofence"))
     return flags, out
 
 

@@ -184,15 +184,27 @@ _WIRED_TABLE: tuple[tuple[str, ParamType, float, float, float, str], ...] = (
         20.0,
         "Auto-disarm if no take-off this long after arming (s), < 0 = off",
     ),
-    # --- geofence (the footage edge)
+    # --- geofence (uploaded fence, home cylinder) and the footage edge
     (
         "GF_ACTION",
         _I,
         2,
         0,
         5,
-        "Footage-edge action: 0 none, 1 warning, 2 Hold, 3 Return, 4 Terminate, 5 Land",
+        "Uploaded geofence action: 0 none, 1 warning, 2 Hold, 3 Return, 4 Terminate, 5 Land",
     ),
+    (
+        "SIM_FTG_FENCE",
+        _I,
+        1,
+        0,
+        5,
+        "Footage edge as a fence: 0 off, 1 warning (default), 2 Hold, 3 Return, 4 Terminate, 5 Land; >= 2 also "
+        "refuses arming, reposition and missions outside the footage",
+    ),
+    ("GF_MAX_HOR_DIST", _F, 0.0, 0.0, 10000.0, "Max horizontal distance from home (m), 0 = off"),
+    ("GF_MAX_VER_DIST", _F, 0.0, 0.0, 10000.0, "Max height above home (m), 0 = off"),
+    ("MC_ORBIT_RAD_MAX", _F, 1000.0, 1.0, 10000.0, "Maximum radius of an orbit (m)"),
     # --- battery
     ("BAT1_CAPACITY", _F, 5000.0, 100.0, 100000.0, "Battery capacity (mAh)"),
     ("BAT1_N_CELLS", _I, 4, 1, 14, "Cells in series"),

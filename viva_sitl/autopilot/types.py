@@ -30,6 +30,11 @@ class AutoSubMode(enum.IntEnum):
     LAND = 6
 
 
+class PosctlSubMode(enum.IntEnum):
+    POSCTL = 0
+    ORBIT = 1
+
+
 class FlightMode(enum.Enum):
     """The modes viva-sitl flies, with PX4's (main, sub) pair."""
 
@@ -44,6 +49,7 @@ class FlightMode(enum.Enum):
     AUTO_MISSION = (MainMode.AUTO, AutoSubMode.MISSION)
     AUTO_RTL = (MainMode.AUTO, AutoSubMode.RTL)
     AUTO_LAND = (MainMode.AUTO, AutoSubMode.LAND)
+    ORBIT = (MainMode.POSCTL, PosctlSubMode.ORBIT)  # PX4 NAVIGATION_STATE_ORBIT
 
     @property
     def custom_mode(self) -> int:
@@ -55,10 +61,12 @@ class FlightMode(enum.Enum):
     def from_px4(cls, main_mode: int, sub_mode: int = 0) -> FlightMode:
         """Decode DO_SET_MODE p2/p3 (or custom_mode fields). Raises ValueError for unknown pairs.
 
-        PX4 maps AUTO with sub 0 to AUTO_LOITER; other main modes ignore the sub mode.
+        PX4 maps AUTO with sub 0 to AUTO_LOITER; POSCTL with sub 1 is Orbit; other main modes ignore the sub mode.
         """
         if main_mode == MainMode.AUTO and sub_mode == 0:
             return cls.AUTO_LOITER
+        if main_mode == MainMode.POSCTL:
+            return cls.ORBIT if sub_mode == PosctlSubMode.ORBIT else cls.POSCTL
         for mode in cls:
             m, s = mode.value
             if m == main_mode and (m == MainMode.AUTO and s == sub_mode or m != MainMode.AUTO):
@@ -167,14 +175,25 @@ class ManualInput:
 
 
 class MissionCommand(enum.IntEnum):
-    """MAV_CMD values accepted as mission items."""
+    """MAV_CMD values accepted as mission items (OTHER: a MAV_CMD we accept, log and skip; see raw_command)."""
 
+    OTHER = -1
     NAV_WAYPOINT = 16
     NAV_LOITER_TIME = 19
     NAV_RETURN_TO_LAUNCH = 20
     NAV_LAND = 21
     NAV_TAKEOFF = 22
+    NAV_DELAY = 93
+    DO_JUMP = 177
     DO_CHANGE_SPEED = 178
+    DO_SET_ROI_LOCATION = 195
+    DO_SET_ROI_NONE = 197
+    DO_SET_ROI = 201
+    DO_MOUNT_CONTROL = 205
+    DO_SET_CAM_TRIGG_DIST = 206
+    DO_GIMBAL_MANAGER_PITCHYAW = 1000
+    IMAGE_START_CAPTURE = 2000
+    IMAGE_STOP_CAPTURE = 2001
 
 
 @dataclass(frozen=True)
@@ -191,3 +210,16 @@ class MissionItem:
     param3: float = 0.0
     param4: float = float("nan")  # yaw (deg), NaN = keep
     autocontinue: bool = True
+    # GLOBAL_RELATIVE_ALT items: metres above home, resolved against home when the item starts (NaN: use down_m)
+    alt_rel_home_m: float = float("nan")
+    raw_command: int = 0  # the MAV_CMD number as uploaded (OTHER items keep theirs here)
+
+
+@dataclass(frozen=True)
+class PayloadAction:
+    """A camera action a mission item (or the distance trigger) asks for; the MAVLink layer routes it to the
+    camera component. kind: "capture_start" (interval_s, total), "capture_stop", "capture_once"."""
+
+    kind: str
+    interval_s: float = 0.0
+    total: int = 1

@@ -33,7 +33,7 @@ from typing import Any
 import numpy as np
 from pymavlink.dialects.v20 import common as mavlink2
 
-from viva_sitl.autopilot.types import CommandResult, Outcome, Severity
+from viva_sitl.autopilot.types import CommandResult, Outcome, PayloadAction, Severity
 from viva_sitl.camera import NADIR_CAM_ROT_BODY
 from viva_sitl.dynamics.rotation import rot_body_to_ned
 from viva_sitl.mavlink.base import (
@@ -312,6 +312,22 @@ class CameraComponent:
     def _start_capture(self, origin: Origin, req: CommandRequest) -> Outcome:
         interval = req.p2 if math.isfinite(req.p2) else 0.0
         total = int(req.p3) if math.isfinite(req.p3) and req.p3 >= 0 else 1
+        return self.start_capture(interval, total)
+
+    def payload_action(self, action: PayloadAction) -> Outcome:
+        """A camera action from a mission item or the distance trigger (the autopilot's PayloadAction)."""
+        if action.kind == "capture_stop":
+            self._stop_interval()
+            return Outcome(CommandResult.ACCEPTED)
+        if action.kind == "capture_start":
+            return self.start_capture(action.interval_s, action.total)
+        if action.kind == "capture_once":
+            self._spawn(self._capture_once())  # a trigger never waits for a running interval capture
+            return Outcome(CommandResult.ACCEPTED)
+        return Outcome(CommandResult.UNSUPPORTED, f"Camera: unknown action {action.kind}")
+
+    def start_capture(self, interval: float, total: int) -> Outcome:
+        """IMAGE_START_CAPTURE semantics: one image (total 1 or no interval), else `total` images (0 = until stop)."""
         if total == 1 or interval <= 0:
             if self._interval_left > 0:
                 return Outcome(CommandResult.TEMPORARILY_REJECTED, "Camera: interval capture running")

@@ -66,6 +66,7 @@ class CommandHandler:
             ),
             M.MAV_CMD_DO_SET_MODE: self._set_mode,
             M.MAV_CMD_DO_REPOSITION: self._reposition,
+            M.MAV_CMD_DO_ORBIT: self._orbit,
             M.MAV_CMD_DO_CHANGE_SPEED: self._change_speed,
             M.MAV_CMD_MISSION_START: self._mission_start,
             M.MAV_CMD_DO_SET_MISSION_CURRENT: self._set_mission_current,
@@ -219,7 +220,26 @@ class CommandHandler:
             down = float(pos[2])
         yaw = math.radians(req.p4) if math.isfinite(req.p4) else None
         speed = req.p1 if math.isfinite(req.p1) and req.p1 > 0 else None
-        return ap.reposition(self._now, north, east, down, yaw, speed), []
+        # param2 bit 0 (MAV_DO_REPOSITION_FLAGS_CHANGE_MODE): switch to Hold; without it PX4 only moves an active Hold
+        change_mode = math.isfinite(req.p2) and bool(int(req.p2) & M.MAV_DO_REPOSITION_FLAGS_CHANGE_MODE)
+        return ap.reposition(self._now, north, east, down, yaw, speed, change_mode=change_mode), []
+
+    def _orbit(self, origin: Origin, req: CommandRequest) -> tuple[Outcome, list[MavMessage]]:
+        """MAV_CMD_DO_ORBIT: p1 radius (sign = direction), p2 speed, p3 ORBIT_YAW_BEHAVIOUR, lat/lon centre and
+        AMSL altitude (NaN / unset: the current orbit's, or the vehicle's position and altitude)."""
+        center: tuple[float, float] | None = None
+        if math.isfinite(req.lat_deg) and math.isfinite(req.lon_deg):
+            if not (-90.0 <= req.lat_deg <= 90.0 and -180.0 <= req.lon_deg <= 180.0):
+                return _ok(CommandResult.DENIED, "Orbit: latitude/longitude out of range"), []
+            north, east, _ = self.vehicle.geo.global_to_ned(
+                req.lat_deg, req.lon_deg, self.vehicle.geo.alt_amsl_m
+            )
+            center = (north, east)
+        # PX4's Orbit task reads param7 / z as AMSL whatever the frame (MAVSDK's do_orbit sends an absolute altitude
+        # in a COMMAND_INT with frame GLOBAL_RELATIVE_ALT): do the same
+        down = self._down_from_alt(req.alt_m, M.MAV_FRAME_GLOBAL)
+        ap = self.vehicle.autopilot
+        return ap.orbit(self._now, req.p1, req.p2, req.p3, center, down), []
 
     def _change_speed(self, origin: Origin, req: CommandRequest) -> tuple[Outcome, list[MavMessage]]:
         # param2: speed (m/s), -1 = no change, -2 = back to the default (the autopilot reads both)

@@ -850,6 +850,13 @@ class MavlinkEndpoint:
                 self.broadcast(
                     M.MAVLink_mission_item_reached_message(int(event.mission_item_reached) & 0xFFFF)
                 )
+        for action in ap.pop_payload_actions():  # mission camera items -> the camera component
+            if self.camera is not None:
+                outcome = self.camera.payload_action(action)
+                if not outcome.ok and outcome.reason:
+                    self._statustext(None, Severity.WARNING, outcome.reason)
+            else:
+                log.info("camera action %s dropped: no camera component", action.kind)
         self.mission.poll(self._now())
         current = (int(ap.mission_current_seq), len(ap.mission_items))
         if current != self._last_mission_current:

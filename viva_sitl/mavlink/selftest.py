@@ -59,8 +59,10 @@ class SnapshotCamera:
 
 
 class SelftestVehicle:
-    """VehicleLink over a Vehicle without footage fence (an open world, the synthetic field), paced on the asyncio
-    loop against wall time x `speed` (clock.run_paced). Nothing is rendered: `camera` is an optional CameraLink."""
+    """VehicleLink over a Vehicle, paced on the asyncio loop against wall time x `speed` (clock.run_paced). Nothing
+    is rendered: `camera` is an optional CameraLink. Without `footage`: no footage edge (an open world, the edgeless
+    synthetic field); with one (a catalog name or footage file, e.g. a finite synthetic field), its edge is the
+    footage-edge fence (SIM_FTG_FENCE)."""
 
     def __init__(
         self,
@@ -68,8 +70,9 @@ class SelftestVehicle:
         speed: float = 1.0,
         camera: CameraLink | None = None,
         seed: int = 0,
+        footage: str | Path | None = None,
     ) -> None:
-        self.vehicle = Vehicle(config or SimConfig(seed=seed), geofence=False)
+        self.vehicle = Vehicle(config or SimConfig(seed=seed), footage=footage, geofence=footage is not None)
         self.camera = camera
         self.boot_wall_time_s = time.time()
         self.pacer = RealTimePacer(dt_s=self.vehicle.dt_s, speed=speed)

@@ -97,6 +97,7 @@ PROFILE_RATES_HZ: dict[StreamProfile, dict[int, float]] = {
         M.MAVLINK_MSG_ID_MISSION_CURRENT: 1.0,
         M.MAVLINK_MSG_ID_SYSTEM_TIME: 1.0,
         M.MAVLINK_MSG_ID_HOME_POSITION: 0.5,
+        M.MAVLINK_MSG_ID_ORBIT_EXECUTION_STATUS: 5.0,  # sent only while orbiting
     },
     StreamProfile.NORMAL: {
         M.MAVLINK_MSG_ID_ATTITUDE: 15.0,
@@ -111,6 +112,7 @@ PROFILE_RATES_HZ: dict[StreamProfile, dict[int, float]] = {
         M.MAVLINK_MSG_ID_SYSTEM_TIME: 1.0,
         M.MAVLINK_MSG_ID_BATTERY_STATUS: 0.5,
         M.MAVLINK_MSG_ID_HOME_POSITION: 0.5,
+        M.MAVLINK_MSG_ID_ORBIT_EXECUTION_STATUS: 2.0,  # sent only while orbiting
     },
 }
 
@@ -213,7 +215,7 @@ class TelemetryBuilder:
         self._rates = (0.0, 0.0, 0.0)
         self.last_manual_input_s = -math.inf  # sim time of the last MANUAL_CONTROL (RC "present" bit)
         self.prearm_ok: Callable[[], bool] = lambda: not self.vehicle.autopilot.armed
-        self.builders: dict[int, Callable[[], MavMessage]] = {
+        self.builders: dict[int, Callable[[], MavMessage | None]] = {
             M.MAVLINK_MSG_ID_HEARTBEAT: self.heartbeat,
             M.MAVLINK_MSG_ID_SYS_STATUS: self.sys_status,
             M.MAVLINK_MSG_ID_SYSTEM_TIME: self.system_time,
@@ -229,6 +231,7 @@ class TelemetryBuilder:
             M.MAVLINK_MSG_ID_MISSION_CURRENT: self.mission_current,
             M.MAVLINK_MSG_ID_ALTITUDE: self.altitude,
             M.MAVLINK_MSG_ID_AUTOPILOT_VERSION: self.autopilot_version,
+            M.MAVLINK_MSG_ID_ORBIT_EXECUTION_STATUS: self.orbit_execution_status,
         }
 
     # --- snapshot ---------------------------------------------------------------------------
@@ -294,6 +297,18 @@ class TelemetryBuilder:
         return M.MAVLink_heartbeat_message(
             M.MAV_TYPE_QUADROTOR, M.MAV_AUTOPILOT_PX4, base, mode.custom_mode, status, 3
         )
+
+    def orbit_execution_status(self) -> MavMessage | None:
+        """ORBIT_EXECUTION_STATUS while in Orbit (PX4: frame GLOBAL, centre lat/lon degE7, z = AMSL altitude)."""
+        orbit = self.vehicle.autopilot.orbit_status
+        if orbit is None:
+            return None
+        geo = self.vehicle.geo
+        lat, lon, _ = geo.ned_to_global(orbit.center_n_m, orbit.center_e_m, 0.0)
+        return M.MAVLink_orbit_execution_status_message(
+            time_boot_us(self.vehicle), orbit.signed_radius_m, M.MAV_FRAME_GLOBAL,
+            round(lat * 1e7), round(lon * 1e7), geo.alt_amsl_m - orbit.center_down_m,
+        )  # fmt: skip
 
     def sys_status(self) -> MavMessage:
         ap = self.vehicle.autopilot

@@ -13,6 +13,7 @@ from viva_sitl.autopilot.tasks.land import LandTask
 from viva_sitl.autopilot.tasks.manual import MANUAL_MODES, ManualTask
 from viva_sitl.autopilot.tasks.mission import MissionTask
 from viva_sitl.autopilot.tasks.offboard import OffboardKind, OffboardTask
+from viva_sitl.autopilot.tasks.orbit import OrbitTask
 from viva_sitl.autopilot.tasks.rtl import RtlPhase, RtlTask
 from viva_sitl.autopilot.tasks.takeoff import TakeoffTask
 from viva_sitl.autopilot.types import FlightMode
@@ -28,6 +29,7 @@ class FlightTasks:
         self.rtl = RtlTask(ctx)
         self.offboard = OffboardTask(ctx)
         self.manual = ManualTask(ctx)
+        self.orbit = OrbitTask(ctx)
         self.mission = MissionTask(ctx, self.enter, self.control, self.rtl.update)
 
     def enter(self, mode: FlightMode, now_s: float) -> None:
@@ -49,6 +51,8 @@ class FlightTasks:
             self.mission.activate(now_s, prev)
         elif mode == FlightMode.OFFBOARD:
             self.offboard.activate(now_s)
+        elif mode == FlightMode.ORBIT:
+            self.orbit.activate(now_s)
         elif mode in MANUAL_MODES:
             self.manual.activate(now_s)
         if prev != mode and prev == FlightMode.OFFBOARD:
@@ -67,6 +71,8 @@ class FlightTasks:
             return self.mission.update(now_s, dt, state, eav)
         if mode == FlightMode.OFFBOARD:
             return self.offboard.update(now_s, dt, state, eav)
+        if mode == FlightMode.ORBIT:
+            return self.orbit.update(now_s, dt, state, eav)
         if mode in MANUAL_MODES:
             return self.manual.update(now_s, dt, state, eav)
         return self.hold.update(now_s, dt, state, eav)
@@ -97,6 +103,7 @@ __all__ = [
     "MissionTask",
     "OffboardKind",
     "OffboardTask",
+    "OrbitTask",
     "RtlPhase",
     "RtlTask",
     "TakeoffTask",

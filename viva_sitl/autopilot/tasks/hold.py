@@ -1,4 +1,8 @@
-"""Hold (AUTO_LOITER, PX4's Hold mode): stay at a point; DO_REPOSITION moves that point."""
+"""Hold (AUTO_LOITER, PX4's Hold mode): stay at a point; DO_REPOSITION moves that point.
+
+A DO_REPOSITION without the change-mode flag, sent outside Hold, is kept (`pending`) and flown the next time Hold is
+entered in the air (PX4's reposition triplet).
+"""
 
 from __future__ import annotations
 
@@ -16,11 +20,20 @@ class HoldTask:
         self.ctx = ctx
         self.target: Vec3 | None = None  # NED
         self.yaw_rad: float | None = None  # None: keep the heading (or face a far target)
+        self.pending: tuple[Vec3, float | None, float | None] | None = (
+            None  # (target, yaw, speed) for next Hold
+        )
 
     def activate(self, now_s: float) -> None:
         """Hold at the braking point (in the air) or where the vehicle stands."""
         ctx = self.ctx
         self.hold_at(ctx.braking_point() if not ctx.on_ground else ctx.pos.copy())
+        if self.pending is not None and ctx.armed and not ctx.on_ground:
+            target, yaw_rad, speed_m_s = self.pending
+            self.pending = None
+            self.hold_at(target, yaw_rad)
+            if speed_m_s is not None:
+                ctx.speed_override = min(speed_m_s, ctx.params.get("MPC_XY_VEL_MAX"))
 
     def hold_at(self, target: Vec3, yaw_rad: float | None = None) -> None:
         self.target = target

@@ -1,7 +1,10 @@
 """Mission (AUTO_MISSION): the uploaded plan and its executor (PX4's Navigator mission).
 
 TAKEOFF items climb vertically at the current position; a mission started on the ground without a TAKEOFF item
-first climbs to MIS_TAKEOFF_ALT (or the item's altitude). Non-navigation items complete at once.
+first climbs to MIS_TAKEOFF_ALT (or the item's altitude). Non-navigation items complete at once: DO_JUMP is
+followed (PX4's repeat counts, kept across a pause), camera and gimbal items become payload actions / a gimbal
+angle (`payload.py`), anything else is logged and skipped. NAV_DELAY waits where the last item left the vehicle.
+Relative altitudes (GLOBAL_RELATIVE_ALT frames) are resolved against home when the item starts, not at upload.
 """
 
 from __future__ import annotations
@@ -13,7 +16,15 @@ import numpy as np
 
 from viva_sitl.autopilot.context import FlightContext, Vec3
 from viva_sitl.autopilot.control import TrajectorySetpoint
-from viva_sitl.autopilot.mission import NAV_COMMANDS, MissionProgress, mission_yaw, validate_mission
+from viva_sitl.autopilot.mission import (
+    NAV_COMMANDS,
+    MissionProgress,
+    mission_yaw,
+    resolve_item,
+    resolve_jumps,
+    validate_mission,
+)
+from viva_sitl.autopilot.payload import DistanceTrigger, item_effect
 from viva_sitl.autopilot.tasks.common import auto_limits, goto, idle, limits, run_position, yaw_rate_auto
 from viva_sitl.autopilot.tasks.land import descend
 from viva_sitl.autopilot.types import (
@@ -23,6 +34,7 @@ from viva_sitl.autopilot.types import (
     MissionCommand,
     MissionItem,
     Outcome,
+    PayloadAction,
     Severity,
 )
 from viva_sitl.dynamics import EavCommand, EavParams, EavState
@@ -43,14 +55,35 @@ class MissionTask:
         self.items: tuple[MissionItem, ...] = ()
         self.valid = False
         self.progress = MissionProgress()
+        # payload: camera actions for the MAVLink camera component, the gimbal angle, PX4's distance trigger
+        self.payload: list[PayloadAction] = []
+        # (pitch, yaw) the last gimbal item asked for (MAVLink: pitch 0 level, -90 down; yaw from the nose, + right);
+        # None until one does (the camera keeps its configured mount)
+        self.gimbal_deg: tuple[float, float] | None = None
+        self.trigger = DistanceTrigger()
 
     # --- the plan -----------------------------------------------------------------------------------
+    def _validate(self, items: Sequence[MissionItem]) -> None:
+        ctx = self.ctx
+        home = (float(ctx.home[0]), float(ctx.home[1]), float(ctx.home[2]))
+        validate_mission(items, home, ctx.footage_ok, ctx.params.get("MIS_DIST_1WP"), fence_ok=ctx.fence_ok)
+
+    def revalidate(self) -> None:
+        """A new geofence: as PX4, a stored mission with a waypoint outside it becomes invalid (not startable)."""
+        if not self.items:
+            return
+        try:
+            self._validate(self.items)
+            self.valid = True
+        except ValueError as e:
+            self.valid = False
+            self.ctx.event(Severity.WARNING, str(e))
+
     def set_items(self, items: Sequence[MissionItem]) -> Outcome:
         ctx = self.ctx
         items = tuple(items)
-        home = (float(ctx.home[0]), float(ctx.home[1]), float(ctx.home[2]))
         try:
-            validate_mission(items, home, ctx.is_inside, ctx.params.get("MIS_DIST_1WP"))
+            self._validate(items)
         except ValueError as e:
             return Outcome(CommandResult.DENIED, str(e))
         self.items = items
@@ -92,7 +125,8 @@ class MissionTask:
         """Entering Mission mode: resume at the current item (from the start once finished)."""
         if prev != FlightMode.AUTO_MISSION or self.progress.finished:
             self.restart_if_finished()
-            self.progress = MissionProgress(seq=self.progress.seq)
+            # DO_JUMP counts survive a pause (PX4 keeps them in the stored items)
+            self.progress = MissionProgress(seq=self.progress.seq, jumps_done=self.progress.jumps_done)
             self.start_item(now_s)
 
     @property
@@ -112,10 +146,13 @@ class MissionTask:
         mp.landing = False
         mp.climbing = False
         mp.climb_xy = None
+        mp.seq, mp.jumps_done, cycling = resolve_jumps(self.items, mp.seq, mp.jumps_done)
+        if cycling:
+            ctx.event(Severity.CRITICAL, cycling)
         if not (0 <= mp.seq < len(self.items)):
             mp.finished = True
             return
-        it = self.items[mp.seq]
+        it = resolve_item(self.items[mp.seq], float(ctx.home[2]))  # relative altitude: the home of now
         pos = ctx.pos
         if it.command == MissionCommand.NAV_TAKEOFF:
             down = it.down_m if math.isfinite(it.down_m) else ctx.home[2] - ctx.params.get("MIS_TAKEOFF_ALT")
@@ -129,6 +166,8 @@ class MissionTask:
             mp.target = np.array([it.north_m, it.east_m, it.down_m], dtype=np.float64)
             if ctx.on_ground and ctx.armed:
                 mp.climbing = True  # implicit take-off first
+        elif it.command == MissionCommand.NAV_DELAY:  # wait param1 s where the last item left the vehicle
+            mp.target = mp.target.copy() if mp.target is not None else pos.copy()
         else:
             mp.target = None
 
@@ -160,6 +199,23 @@ class MissionTask:
         self.start_item(now_s)
         if mp.target is None:
             mp.target = last_target
+        if mp.finished:  # a DO_JUMP chain ran past the last item
+            ctx.event(Severity.INFO, "Mission finished, loitering")
+
+    def do_item(self, it: MissionItem, pos: Vec3) -> None:
+        """A camera / gimbal / other DO item, at once."""
+        eff = item_effect(it)
+        self.payload.extend(eff.actions)
+        if eff.gimbal_deg is not None:
+            self.gimbal_deg = eff.gimbal_deg
+        if eff.trigger_dist_m is not None:
+            self.trigger.set(eff.trigger_dist_m, float(pos[0]), float(pos[1]))
+        if eff.note:
+            self.ctx.event(Severity.INFO, eff.note)
+
+    def pop_payload(self) -> list[PayloadAction]:
+        out, self.payload = self.payload, []
+        return out
 
     def on_touchdown(self, now_s: float) -> None:
         """The land detector saw the ground: a LAND item in progress is reached."""
@@ -190,6 +246,10 @@ class MissionTask:
             if it.command == MissionCommand.NAV_RETURN_TO_LAUNCH:
                 self.item_done(now_s)
                 return self._rtl(now_s, dt, state, eav)
+            if it.command not in NAV_COMMANDS:  # camera / gimbal / other DO items: at once
+                self.do_item(it, pos)
+                self.item_done(now_s)
+                continue
             break
         if ctx.mode != FlightMode.AUTO_MISSION:
             return self._control(now_s, dt, state, eav)
@@ -251,9 +311,7 @@ class MissionTask:
                 if ctx.mode != FlightMode.AUTO_MISSION:
                     return self._control(now_s, dt, state, eav)
                 if not mp.finished:
-                    nxt = items[mp.seq]
-                    if nxt.command in NAV_COMMANDS or nxt.command == MissionCommand.DO_CHANGE_SPEED:
-                        return self.update(now_s, dt, state, eav, depth + 1)
+                    return self.update(now_s, dt, state, eav, depth + 1)
         tgt = mp.target if mp.target is not None else target
         sp = TrajectorySetpoint(pos_ned_m=(float(tgt[0]), float(tgt[1]), float(tgt[2])))
         return run_position(ctx, dt, state, sp, lim, eav, self._yaw(it, pos, tgt), yaw_rate_auto(ctx))

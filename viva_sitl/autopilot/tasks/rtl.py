@@ -1,4 +1,5 @@
-"""Return (AUTO_RTL): climb to RTL_RETURN_ALT, fly home, descend to RTL_DESCEND_ALT, loiter RTL_LAND_DELAY, land."""
+"""Return (AUTO_RTL): climb to RTL_RETURN_ALT, fly to the destination, descend to RTL_DESCEND_ALT, loiter
+RTL_LAND_DELAY, land. The destination is the closest of home and the rally points (PX4's RTL_TYPE 0)."""
 
 from __future__ import annotations
 
@@ -8,8 +9,10 @@ import math
 import numpy as np
 
 from viva_sitl.autopilot.context import FlightContext, Vec3
+from viva_sitl.autopilot.geofence import rtl_destination
 from viva_sitl.autopilot.tasks.common import goto, yaw_rate_auto
 from viva_sitl.autopilot.tasks.land import descend
+from viva_sitl.autopilot.types import Severity
 from viva_sitl.dynamics import EavCommand, EavParams, EavState
 
 
@@ -28,6 +31,7 @@ class RtlTask:
         self.alt_down = 0.0  # return altitude (NED down)
         self.loiter_since_s = 0.0
         self.climb_at: Vec3 | None = None  # where the climb happens (the braking point)
+        self.dest: Vec3 | None = None  # where it returns to: home or a rally point
 
     @property
     def landing(self) -> bool:
@@ -36,6 +40,10 @@ class RtlTask:
     def activate(self, now_s: float) -> None:
         ctx = self.ctx
         pos = ctx.pos
+        dest, rally_i = rtl_destination(pos, ctx.home, ctx.rally)
+        self.dest = np.array(dest, dtype=np.float64)
+        if rally_i is not None:
+            ctx.event(Severity.INFO, f"RTL: returning to rally point {rally_i}")
         self.alt_down = float(min(pos[2], ctx.home[2] - ctx.params.get("RTL_RETURN_ALT")))
         self.phase = RtlPhase.LAND if ctx.on_ground else RtlPhase.CLIMB
         self.climb_at = ctx.braking_point()
@@ -44,7 +52,7 @@ class RtlTask:
         ctx = self.ctx
         p = ctx.params
         pos = np.asarray(state.pos_ned_m, dtype=np.float64)
-        home = ctx.home
+        home = self.dest if self.dest is not None else ctx.home
         if self.climb_at is None:
             self.climb_at = pos.copy()
         if self.phase == RtlPhase.CLIMB:
