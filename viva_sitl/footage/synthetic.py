@@ -24,6 +24,7 @@ from viva_sitl.footage.annotations import Annotation, make_annotation
 from viva_sitl.footage.geometry import FootageGeometry
 from viva_sitl.footage.metadata import FootageKind, FootageMetadata
 from viva_sitl.footage.source import FootageSource, _readonly
+from viva_sitl.footage.synthetic_actors import draw_actors, draw_scene_ground
 
 LABEL = "SYNTHETIC CALIBRATION FIELD"
 GROUND_BGR = (78, 104, 92)  # olive-grey ground
@@ -199,6 +200,7 @@ class SyntheticField(FootageSource):
             tex = cv2.resize(small, (w, h), interpolation=cv2.INTER_CUBIC)
             tex = cv2.GaussianBlur(tex, (0, 0), 2.0) * (p.texture_amplitude / max(float(tex.std()), 1e-6))
             img = np.clip(img.astype(np.float32) + tex[:, :, None], 0, 255).astype(np.uint8)
+        draw_scene_ground(img, self._px)  # ring road + plaza of the moving people/cars (synthetic_actors.py)
         half_n, half_e = g.ground_height_m / 2.0, g.ground_width_m / 2.0
         font = cv2.FONT_HERSHEY_SIMPLEX
         px_per_m = 1.0 / g.gsd_m_per_px
@@ -273,6 +275,7 @@ class SyntheticField(FootageSource):
             t = self.time_of(index)
             for m in self.params.markers:
                 self._draw_marker(img, m, t)
+            draw_actors(img, t, self._px, self.geometry.gsd_m_per_px)  # people and cars (synthetic_actors.py)
             self._last, self._last_index = _readonly(img), index
             return self._last
 
