@@ -91,6 +91,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     footage = sub.add_parser("footage", help="footage catalog: list | info | get | ingest", add_help=False)
     footage.add_argument("rest", nargs=argparse.REMAINDER)
+    trials = sub.add_parser("trials", help="landing trials: run | compare | show | scenarios", add_help=False)
+    trials.add_argument("rest", nargs=argparse.REMAINDER)
     return parser
 
 
@@ -130,6 +132,10 @@ def main(argv: list[str] | None = None) -> int:
         from viva_sitl.footage import footage_main
 
         return footage_main(argv[1:])
+    if argv[:1] == ["trials"]:  # landing trials have their own parser (viva_sitl/evaluation/cli.py)
+        from viva_sitl.evaluation.cli import trials_main
+
+        return trials_main(argv[1:])
     parser = build_parser()
     args = parser.parse_args(argv)
     logging.basicConfig(level=args.log_level, format="%(asctime)s %(levelname)s %(name)s: %(message)s")

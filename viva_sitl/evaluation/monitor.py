@@ -10,7 +10,7 @@ the pilot (set by the runner).
 
 Event schedule (times in s after the start): "land now" at land_at_s (an event the pilot sees: in-process in the
 observation, over MAVLink as a STATUSTEXT "Emergency: land now"); failures: gcs_link_lost (the virtual ground station
-stops its heartbeats: PX4's NAV_DLL_ACT link-loss failsafe after COM_DL_LOSS_T), battery_critical (the battery
+stops being heard: PX4's NAV_DLL_ACT link-loss failsafe after COM_DL_LOSS_T), battery_critical (the battery
 drops below BAT_CRIT_THR: PX4's "Critical battery level! Land now" warning).
 """
 
@@ -136,9 +136,6 @@ class TrialMonitor:
         self._log_period_s = 1.0 / limits.log_hz
         self._next_log_s = 0.0
         self._next_hb_s = 0.0
-        self._gcs_lost_at = min(
-            (f.at_s for f in scenario.failures if f.kind == "gcs_link_lost"), default=math.inf
-        )
         self._pending = sorted(
             [(scenario.land_at_s, "land_now")] + [(f.at_s, f.kind) for f in scenario.failures]
         )
@@ -180,6 +177,7 @@ class TrialMonitor:
             self.log.land_now_t_s = round(t, 6)
             self.event(t, "land_now", LAND_NOW_TEXT, int(Severity.ALERT))
         elif kind == "gcs_link_lost":
+            cut_gcs_link(v.autopilot)
             self.event(t, "failure", "injected: GCS link lost", int(Severity.CRITICAL))
         elif kind == "battery_critical":
             inject_battery_critical(v)
@@ -195,7 +193,7 @@ class TrialMonitor:
         while self._pending and self._pending[0][0] <= t:
             _, kind = self._pending.pop(0)
             self._apply(v, t, kind)
-        if self.gcs and t < self._gcs_lost_at and t >= self._next_hb_s:
+        if self.gcs and t >= self._next_hb_s:
             ap.gcs_heartbeat(float(s.time_s))
             self._next_hb_s = t + GCS_HEARTBEAT_PERIOD_S
         # path and energy at the physics rate
@@ -285,3 +283,9 @@ def inject_battery_critical(v: MonitoredVehicle) -> None:
     target = max(0.0, p.get("BAT_CRIT_THR") - 0.01)
     p.set("SIM_BAT_MIN_PCT", 0.0)
     p.set("BAT1_CAPACITY", max(used / (1.0 - target), 1e-3))
+
+
+def cut_gcs_link(autopilot: Autopilot) -> None:
+    """From now on this autopilot hears no ground-station heartbeat (the radio link is gone; an onboard API link
+    keeps working): PX4's data-link-loss failsafe (COM_DL_LOSS_T, NAV_DLL_ACT) follows as on a real vehicle."""
+    setattr(autopilot, "gcs_heartbeat", lambda now_s: None)  # noqa: B010 - instance override, this flight only
