@@ -204,14 +204,17 @@ def run_external_trial(
                     time.sleep(0.1)
         finally:
             if pilot is not None:
-                if (
-                    end_override is None
-                ):  # the trial is over: a script that waits for the disarm exits by itself
+                if end_override is None:  # trial over: a script that waits for the disarm exits by itself
                     with contextlib.suppress(subprocess.TimeoutExpired):
                         pilot.wait(PILOT_EXIT_GRACE_S)
-                prc = stop_group(pilot)
                 if not pilot_note:
-                    pilot_note = f"pilot still running at the end of the trial (stopped, exit code {prc})"
+                    if pilot.poll() is None:
+                        pilot_note = (
+                            f"pilot still running at the end of the trial (stopped: {stop_group(pilot)})"
+                        )
+                    else:
+                        pilot_note = f"pilot exited with code {pilot.returncode}"
+                stop_group(pilot)  # and its process group (e.g. a mavsdk_server the script started)
             if sitl is not None:
                 stop_group(sitl, grace_s=5.0)
     try:
