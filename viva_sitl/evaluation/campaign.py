@@ -27,7 +27,7 @@ from multiprocessing.connection import Connection
 from pathlib import Path
 from typing import Any
 
-from viva_sitl.evaluation.pilots import is_inprocess
+from viva_sitl.evaluation.pilots import is_inprocess, make_pilot
 from viva_sitl.evaluation.scoring import COLUMNS, SCHEMA, score_trial
 from viva_sitl.evaluation.spec import Scenario, TrialSpec, draw_scenarios
 
@@ -295,6 +295,8 @@ def run_campaign(
     from viva_sitl.evaluation.report import write_reports
 
     pilot = pilot or spec.pilot
+    if is_inprocess(pilot):
+        make_pilot(pilot)  # a pilot that cannot be made fails here with one line, not once per trial
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     scenarios = draw_scenarios(spec, n, seed)

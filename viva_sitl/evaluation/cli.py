@@ -114,13 +114,10 @@ def trials_main(argv: list[str]) -> int:
 
 def _run(args: argparse.Namespace) -> int:
     from viva_sitl.evaluation.campaign import run_campaign
-    from viva_sitl.evaluation.pilots import is_inprocess, make_pilot
     from viva_sitl.evaluation.spec import load_spec
 
     spec = load_spec(args.spec)
     pilot = args.pilot or spec.pilot
-    if is_inprocess(pilot):
-        make_pilot(pilot)  # fail now with one line, not once per trial
     safe = "".join(ch if ch.isalnum() or ch in "-_" else "_" for ch in pilot.split("/")[-1])[:40]
     out = Path(args.out) if args.out else Path("trials-out") / f"{spec.name}-{safe}"
     try:

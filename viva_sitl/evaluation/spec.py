@@ -157,7 +157,8 @@ class Scenario:
         d["params"] = dict(self.params)
         d["failures"] = [dataclasses.asdict(f) for f in self.failures]
         d["start_pos_ned_m"] = list(self.start_pos_ned_m)
-        return d
+        d["wind_ned_m_s"] = list(self.wind_ned_m_s)
+        return d  # JSON-normal: equal to its own JSON round trip
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> Scenario:
