@@ -22,8 +22,9 @@ values are in its environment:
 
 "Land now" also reaches the pilot over MAVLink, as a STATUSTEXT (severity ALERT) "Emergency: land now".
 
-The vehicle process ends the trial itself (touchdown + disarm, crash, leaving the footage, timeout) and writes the
-logs; then the pilot is stopped. Every process runs in its own process group and is ended (SIGINT, SIGTERM, then
+The vehicle process ends the trial itself (touchdown + disarm, crash, leaving the footage, timeout), writes the
+logs and prints `viva-sitl trial: {...}`; the pilot then gets PILOT_EXIT_GRACE_S to exit on its own (the vehicle
+still answers), then both are stopped. Every process runs in its own process group and is ended (SIGINT, SIGTERM, then
 SIGKILL of the group) on every exit path, including Ctrl-C and the trial's wall limit; on Linux they also get
 PR_SET_PDEATHSIG, so they die with the worker even if it is killed outright.
 """
@@ -193,7 +194,7 @@ def run_external_trial(
                 if pilot is not None:
                     ppump = _Pump(pilot, plog, ())
                     ppump.start()
-                while end_override is None and sitl.poll() is None:
+                while end_override is None and sitl.poll() is None and TRIAL_PREFIX not in spump.hits:
                     if time.perf_counter() - wall0 > limit:
                         end_override = ("wall_timeout", f"trial took more than {limit:g} s of wall time")
                         break

@@ -6,15 +6,18 @@ vivasitl.scenario.v1, plus "limits"); an external pilot reads the same file (VIV
   - by `scenario_config` (before the vehicle exists): footage, seed, start pose (an air start is armed in Hold
     there), yaw, PX4 parameters (drawn ones + SIM_WIND_* / SIM_GUST_STD);
   - by ScenarioSession (app.py calls it after every physics step): the footage clock (footage_time_s), the
-    TrialMonitor ("land now" and failures at their times, sent as STATUSTEXT; the trajectory; the end), and at the
-    end trajectory.csv / events.jsonl / end.json in the run directory. The app stops when the trial ends and
-    prints `viva-sitl trial: {json}` (the end summary) on stdout.
+    TrialMonitor ("land now" and failures at their times, sent as STATUSTEXT, "land now" repeated every
+    LAND_NOW_REPEAT_S; the trajectory; the end), and at the
+    end trajectory.csv / events.jsonl / end.json in the run directory and `viva-sitl trial: {json}` (the end
+    summary) on stdout; the app stops LINGER_S later (a pilot can still close its connection cleanly).
 """
 
 from __future__ import annotations
 
 import dataclasses
 import json
+import math
+import time
 from pathlib import Path
 from typing import Any
 
@@ -24,6 +27,8 @@ from viva_sitl.evaluation.monitor import LAND_NOW_TEXT, Limits, TrialMonitor
 from viva_sitl.evaluation.spec import Scenario
 
 TRIAL_PREFIX = "viva-sitl trial:"
+LAND_NOW_REPEAT_S = 5.0  # sim seconds between repeats of the "land now" STATUSTEXT until the trial ends
+LINGER_S = 10.0  # wall seconds the app keeps running after the trial ended (`trials run` stops it sooner)
 
 
 def read_scenario_file(path: str | Path) -> tuple[Scenario, Limits]:
@@ -72,23 +77,41 @@ class ScenarioSession:
         self.monitor.start(vehicle)
         self._sent = 0
         self.finished = False
+        self._ended_wall_s: float | None = None
+        self._repeat_s = math.inf
 
     @property
     def done(self) -> bool:
         return self.monitor.log.end is not None
 
     def after_step(self) -> bool:
-        """Call after every physics step; True once the trial is over."""
+        """Call after every physics step; True LINGER_S wall seconds after the trial ended (the logs and the
+        `viva-sitl trial:` line are written at the end itself; the vehicle keeps answering meanwhile, so a pilot
+        that waits for the disarm and then closes its connection ends cleanly)."""
         m = self.monitor
         if m.log.end is None:
             m.after_step(self.vehicle)
+            if m.log.end is not None:
+                self._write()
             ev = m.log.events
             while self._sent < len(ev):  # land-now and injected failures: tell the pilot as PX4 would
                 e = ev[self._sent]
                 self._sent += 1
                 if e["kind"] in ("land_now", "failure"):
                     self.vehicle.autopilot.ctx.event(Severity(e["severity"]), e["text"])
-        return m.log.end is not None
+                if e["kind"] == "land_now":
+                    self._repeat_s = e["t_s"] + LAND_NOW_REPEAT_S
+            t = m.t_of(self.vehicle.state)
+            if t >= self._repeat_s and m.log.end is None:  # a pilot that connected late still hears it
+                self._repeat_s = t + LAND_NOW_REPEAT_S
+                self.vehicle.autopilot.ctx.event(Severity.ALERT, LAND_NOW_TEXT)
+        return self._ended_wall_s is not None and time.monotonic() - self._ended_wall_s >= LINGER_S
+
+    def _write(self) -> None:
+        self.finished = True
+        self._ended_wall_s = time.monotonic()
+        self.monitor.log.write(self.run_dir)
+        print(f"{TRIAL_PREFIX} {json.dumps(self.monitor.log.summary())}", flush=True)
 
     def on_statustext(self, text: str, severity: int) -> None:
         """The endpoint's event listener: every STATUSTEXT the vehicle sends goes into the trial's events."""
@@ -96,10 +119,8 @@ class ScenarioSession:
             return  # our own, already logged
         self.monitor.record_autopilot_event(self.vehicle.time_s, int(severity), text)
 
-    def finish(self, reason: str = "stopped") -> dict[str, Any]:
-        """Write the logs (also when the run was stopped before the trial ended) and return the end summary."""
+    def finish(self, reason: str = "viva-sitl run stopped before the trial ended") -> None:
+        """At the app's exit: the logs of a trial cut short (Ctrl-C, --duration) are written too."""
         if not self.finished:
-            self.finished = True
             self.monitor.end(self.vehicle, "sitl_stopped", reason)
-            self.monitor.log.write(self.run_dir)
-        return self.monitor.log.summary()
+            self._write()
