@@ -117,17 +117,17 @@ def ours(clip: Path, n: int, jobs: int) -> dict[str, Any]:
 
 
 def ours_memory(clip: Path) -> float:
-    code = (
-        "import sys, resource; sys.path.insert(0, %r)\n"
-        "from pathlib import Path\nimport tempfile\n"
-        "from bench.bench_trials import bench_spec\n"
-        "from viva_sitl.evaluation.spec import draw_scenarios\n"
-        "from viva_sitl.evaluation.runner import run_inprocess_trial\n"
-        "spec = bench_spec(Path(%r), 1)\n"
-        "with tempfile.TemporaryDirectory() as d:\n"
-        "    run_inprocess_trial(spec, draw_scenarios(spec)[0], 'bench.bench_trials:VisionDescend', Path(d))\n"
-        "print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024)\n"
-    ) % (str(REPO), str(clip))
+    code = "\n".join([
+        f"import sys, resource; sys.path.insert(0, {str(REPO)!r})",
+        "from pathlib import Path", "import tempfile",
+        "from bench.bench_trials import bench_spec",
+        "from viva_sitl.evaluation.spec import draw_scenarios",
+        "from viva_sitl.evaluation.runner import run_inprocess_trial",
+        f"spec = bench_spec(Path({str(clip)!r}), 1)",
+        "with tempfile.TemporaryDirectory() as d:",
+        "    run_inprocess_trial(spec, draw_scenarios(spec)[0], 'bench.bench_trials:VisionDescend', Path(d))",
+        "print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024)",
+    ])  # fmt: skip
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=REPO)
     return float(out.stdout.strip().splitlines()[-1])
 
@@ -155,7 +155,9 @@ def main() -> int:
     ap.add_argument("--jobs", type=int, default=os.cpu_count() or 1)
     ap.add_argument("--rounds", type=int, default=1, help="rounds, interleaved ref ours ref ours ...")
     ap.add_argument("--ref-python", default="/work/refvenv/bin/python")
-    ap.add_argument("--frames", type=int, default=60, help="frames of the 4K bench clip (bench_core.make_clip)")
+    ap.add_argument(
+        "--frames", type=int, default=60, help="frames of the 4K bench clip (bench_core.make_clip)"
+    )
     args = ap.parse_args()
     from bench.bench_core import DEFAULT_CACHE, make_clip
 

@@ -22,26 +22,40 @@ from viva_sitl.autopilot import (
     ParamStore,
     PositionTarget,
 )
-from viva_sitl.dynamics import EavParams, EavState, quat_from_euler, step
+from viva_sitl.config import SimConfig
+from viva_sitl.dynamics import EavParams, EavState, quat_from_euler
+from viva_sitl.vehicle import Vehicle
 
 InsideFn = Callable[[float, float], bool]
 
 
 class Flight:
-    """An autopilot and an EAV stepped together, as the app does (update -> step)."""
+    """A Vehicle (the app's loop: autopilot.update -> EAV step) with the test's own geofence and parameters."""
 
     def __init__(self, eav: EavParams | None = None, inside: InsideFn | None = None, **params: float) -> None:
         self.eav = eav or EavParams()
-        self.params = ParamStore()
+        store = ParamStore()
         for k, v in params.items():
-            self.params.set(k, v)
-        self.ap = Autopilot(self.params, self.eav, inside=inside)
-        self.state = EavState.at_rest(dt_s=self.eav.dt_s)
+            store.set(k, v)
+        self.vehicle = Vehicle(SimConfig(physics=self.eav), geofence=inside or False, params=store)
+        self.params = self.vehicle.params
         self.events: list[Event] = []
         self.landed_states: list[LandedState] = [self.ap.landed_state]
         self.trace: list[tuple[float, np.ndarray, np.ndarray]] = []
         self.each: Callable[[Flight], None] | None = None
-        self.rng = np.random.default_rng(0)  # gusts / force noise, when the EAV has them
+
+    @property
+    def ap(self) -> Autopilot:
+        return self.vehicle.autopilot
+
+    @property
+    def state(self) -> EavState:
+        return self.vehicle.state
+
+    @state.setter
+    def state(self, state: EavState) -> None:
+        """Teleport the physics (the autopilot keeps its own state, as after a glitch)."""
+        self.vehicle.sim.state = state
 
     @property
     def t(self) -> float:
@@ -59,8 +73,7 @@ class Flight:
         for _ in range(int(round(seconds / self.eav.dt_s))):
             if self.each is not None:
                 self.each(self)
-            cmd = self.ap.update(self.t, self.state)
-            self.state = step(self.state, cmd, self.ap.eav_params(), self.rng)
+            self.vehicle.step(1)
             self.events += self.ap.pop_events()
             if self.ap.landed_state != self.landed_states[-1]:
                 self.landed_states.append(self.ap.landed_state)
@@ -154,14 +167,15 @@ def test_disarm_in_air_denied_kill_drops() -> None:
     assert (
         f.state.touchdown_speed_m_s is not None and f.state.touchdown_speed_m_s > 5.0
     )  # free fall from 2.5 m
-    f.run(0.1)  # the autopilot sees the contact at its next update
+    f.run(1.1)  # landed once the contact held LNDMC_TRIG_TIME (1 s, PX4's land detector hysteresis)
     assert f.ap.landed_state == LandedState.ON_GROUND
 
 
 def test_arming_checks() -> None:
-    f = Flight(inside=lambda n, e: n < 5.0)
-    out = f.ap.arm(0.0)
+    bare = Autopilot(ParamStore(), EavParams())
+    out = bare.arm(0.0)
     assert out.result == CommandResult.TEMPORARILY_REJECTED  # no state yet
+    f = Flight(inside=lambda n, e: n < 5.0)
     f.run(0.1)
     assert f.ap.set_mode(f.t, FlightMode.AUTO_MISSION).result == CommandResult.TEMPORARILY_REJECTED
     assert f.ap.set_mode(f.t, FlightMode.OFFBOARD).result == CommandResult.TEMPORARILY_REJECTED
@@ -544,6 +558,8 @@ def test_commands_in_odd_states() -> None:
     assert f.ap.land(f.t).ok and f.ap.mode == FlightMode.AUTO_LAND  # on the ground: accepted, nothing happens
     assert f.ap.disarm(f.t).ok  # already disarmed
     assert f.ap.reposition(f.t, 1.0, 1.0, -2.0, None).result == CommandResult.DENIED  # disarmed
+    assert f.ap.arm(f.t).result == CommandResult.DENIED  # Land prevents arming
+    assert f.ap.set_mode(f.t, FlightMode.AUTO_LOITER).ok
     assert f.ap.arm(f.t).ok
     out = f.ap.reposition(f.t, 1.0, 1.0, -2.0, None)
     assert out.result == CommandResult.TEMPORARILY_REJECTED  # landed
@@ -556,7 +572,7 @@ def test_commands_in_odd_states() -> None:
 
 def test_air_start_holds_armed_with_home_below() -> None:
     f = Flight()
-    f.state = EavState.at_rest(pos_ned_m=(3.0, 4.0, -20.0), dt_s=f.eav.dt_s)
+    f.vehicle.reset(pos_ned_m=(3.0, 4.0, -20.0))  # the autopilot's first state is in the air
     f.run(5.0)
     assert f.ap.armed and f.ap.mode == FlightMode.AUTO_LOITER
     assert f.pos == pytest.approx([3.0, 4.0, -20.0], abs=0.1)
@@ -625,10 +641,13 @@ def test_mode_requests_are_idempotent_and_rtl_mission_item() -> None:
     ]
     assert f.ap.set_mission(mission).ok
     assert f.ap.mission_start(f.t).ok
+    modes: set[FlightMode] = set()
+    f.each = lambda f: modes.add(f.ap.mode)
     f.run(60.0, until=lambda f: not f.ap.armed)
     assert [e.mission_item_reached for e in f.events if e.mission_item_reached is not None] == [0, 1]
     assert not f.ap.armed and np.hypot(f.pos[0], f.pos[1]) < 0.3
-    assert f.ap.mode == FlightMode.AUTO_RTL
+    assert FlightMode.AUTO_RTL in modes
+    assert f.ap.mode == FlightMode.AUTO_MISSION  # disarmed: back to the user's mode (Return prevents arming)
 
 
 def test_offboard_loss_with_rc_goes_to_position_mode() -> None:
@@ -640,3 +659,42 @@ def test_offboard_loss_with_rc_goes_to_position_mode() -> None:
     f.each = lambda fl: send_sticks(fl, ManualInput(0.0, 0.0, 0.5, 0.0))  # RC present, setpoints stop
     f.run(2.0)
     assert f.ap.mode == FlightMode.POSCTL  # COM_OBL_RC_ACT 0 = Position mode
+
+
+def test_land_detector_hysteresis_as_px4() -> None:
+    """Landed is declared once ground contact held LNDMC_TRIG_TIME (1 s): ground contact -> maybe landed ->
+    landed; until then the landed state stays LANDING; auto-disarm counts COM_DISARM_LAND from the detection."""
+    f = Flight(COM_DISARM_LAND=2.0)
+    f.take_off()
+    assert f.ap.land(f.t).ok
+    assert f.run(30.0, until=lambda f: f.state.landed)
+    contact_s = f.t
+    assert f.ap.landed_state == LandedState.LANDING
+    assert f.run(0.95, until=lambda f: f.ap.landed_state != LandedState.LANDING) is False  # not yet at 0.95 s
+    assert f.run(0.2, until=lambda f: f.ap.landed_state == LandedState.ON_GROUND)
+    assert f.t - contact_s == pytest.approx(1.0, abs=0.02)
+    landed_event = [e for e in f.events if e.text == "Landing detected"]
+    assert len(landed_event) == 1 and landed_event[0].time_s == pytest.approx(contact_s + 1.0, abs=0.02)
+    assert f.ap.armed
+    assert f.run(3.0, until=lambda f: not f.ap.armed)
+    assert f.t - contact_s == pytest.approx(3.0, abs=0.02)  # 1 s detection + COM_DISARM_LAND 2 s
+
+
+def test_land_and_return_prevent_arming_as_px4() -> None:
+    """PX4's mode_req_prevent_arming: no arming in Land or Return. Selecting them while disarmed is accepted (PX4
+    allows every mode change while disarmed); disarming in them returns to the last user mode that can arm."""
+    f = Flight(COM_DISARM_LAND=1.0, RTL_RETURN_ALT=4.0, RTL_DESCEND_ALT=3.0)
+    f.run(0.1)
+    for select in (lambda: f.ap.land(f.t), lambda: f.ap.return_to_launch(f.t)):
+        assert select().ok
+        assert f.ap.mode in (FlightMode.AUTO_LAND, FlightMode.AUTO_RTL)
+        out = f.ap.arm(f.t)
+        assert out.result == CommandResult.DENIED and "not armable" in out.reason, out
+        assert not f.ap.prearm_check(f.t).ok
+        assert not f.ap.armed
+    assert f.ap.set_mode(f.t, FlightMode.AUTO_LOITER).ok
+    f.take_off()
+    assert f.ap.return_to_launch(f.t).ok
+    assert f.run(60.0, until=lambda f: not f.ap.armed)  # returned, landed, auto-disarmed
+    assert f.ap.mode == FlightMode.AUTO_LOITER  # back to the mode before Return: armable again
+    assert f.ap.arm(f.t).ok

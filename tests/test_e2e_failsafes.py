@@ -60,10 +60,16 @@ def land_and_wait(peer: MavlinkPeer) -> None:
     )
 
 
-def warnings_since(peer: MavlinkPeer, t0: float) -> list[str]:
-    return [
-        m.text for m in peer.messages("STATUSTEXT", since_s=t0) if m.severity <= mavlink2.MAV_SEVERITY_WARNING
-    ]
+def wait_warning(peer: MavlinkPeer, t0: float, what: str, about: str = "") -> Any:
+    """A STATUSTEXT of severity WARNING or worse received since t0 (mentioning `about`); it may follow the
+    HEARTBEAT that showed the mode change by a moment (housekeeping sends it)."""
+    return peer.wait(
+        "STATUSTEXT",
+        lambda m: m.severity <= mavlink2.MAV_SEVERITY_WARNING and about in m.text.lower(),
+        2.0,
+        since_s=t0,
+        what=what,
+    )
 
 
 def test_offboard_setpoint_loss_falls_back_to_hold(
@@ -83,7 +89,7 @@ def test_offboard_setpoint_loss_falls_back_to_hold(
     lost = time.monotonic()
     # COM_OBL_RC_ACT 0 without RC -> Hold, after COM_OF_LOSS_T of sim time (shorter in wall time at a speed factor).
     autopilot_mode(peer, MODE_AUTO_LOITER, loss_s / sitl.speed + 5.0, "Hold after offboard loss")
-    assert warnings_since(peer, lost), "no STATUSTEXT warning about the offboard loss"
+    wait_warning(peer, lost, "a STATUSTEXT warning about the offboard loss")
     x, y, z = peer.local_position()
     assert math.hypot(x - hover.x, y - hover.y) < 1.0 and abs(z + 3.0) < 0.5, "did not hold where it was"
     land_and_wait(peer)
@@ -116,8 +122,7 @@ def test_footage_edge_geofence_holds_inside_and_refuses_outside_missions(
         autopilot_mode(peer, MODE_AUTO_LOITER, 60.0, "Hold at the footage edge (GF_ACTION 2)")
     finally:
         streamer.stop()
-    breach_warnings = warnings_since(peer, t0)
-    assert any("geofence" in text.lower() for text in breach_warnings), breach_warnings
+    wait_warning(peer, t0, "a geofence breach warning", about="geofence")
     # Hold flies back to the last position that was still inside the footage (it brakes past the edge first).
     settled = peer.wait(
         "LOCAL_POSITION_NED",
@@ -154,5 +159,5 @@ def test_gcs_link_loss_triggers_nav_dll_act(
     assert quiet_wall_s > 0.8 * loss_s / sitl.speed, (
         f"failsafe {quiet_wall_s:.2f} s after the last GCS heartbeat"
     )
-    assert warnings_since(peer, silent), "no STATUSTEXT about the link loss"
+    wait_warning(peer, silent, "a STATUSTEXT about the link loss")
     peer.wait("EXTENDED_SYS_STATE", lambda m: m.landed_state == LANDED_ON_GROUND, 60.0, what="touchdown")

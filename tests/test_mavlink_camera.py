@@ -8,11 +8,12 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
+from mav_client import MavClient, VehicleThread
 from pymavlink.dialects.v20 import common as M
 
 from viva_sitl.mavlink import CaptureResult, MavlinkConfig
-from viva_sitl.mavlink.camera import DEFAULT_CAMERA_INFO
-from viva_sitl.mavlink.selftest import MavClient, SnapshotCamera, VehicleThread
+from viva_sitl.mavlink.camera_link import DEFAULT_CAMERA_INFO
+from viva_sitl.mavlink.selftest import SnapshotCamera
 
 CAM = 100
 

@@ -7,11 +7,11 @@ import math
 from collections.abc import Iterator
 
 import pytest
+from mav_client import MavClient, VehicleThread
 from pymavlink.dialects.v20 import common as M
 
 from viva_sitl.geo import GeoOrigin
 from viva_sitl.mavlink import MavlinkConfig
-from viva_sitl.mavlink.selftest import MavClient, VehicleThread
 
 NAN = math.nan
 GEO = GeoOrigin()

@@ -7,6 +7,7 @@ import math
 from collections.abc import Callable, Iterator
 
 import pytest
+from mav_client import MavClient, VehicleThread
 from pymavlink.dialects.v20 import common as M
 
 from viva_sitl.autopilot import FlightMode, OffboardFrame
@@ -20,7 +21,6 @@ from viva_sitl.mavlink.offboard import (
     decode_position_target_global,
     decode_position_target_local,
 )
-from viva_sitl.mavlink.selftest import MavClient, VehicleThread
 
 NAN = math.nan
 MAV = M.MAVLink(None, 255, 190)

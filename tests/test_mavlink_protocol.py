@@ -1,5 +1,5 @@
 """Protocol-level tests of the MAVLink endpoint: a real MavlinkEndpoint over real UDP on 127.0.0.1 (free ports),
-driven by the real Autopilot + EAV dynamics (viva_sitl.mavlink.selftest.MinimalVehicle), and a pymavlink-codec client.
+driven by the real Autopilot + EAV dynamics (viva_sitl.mavlink.selftest.SelftestVehicle), and a pymavlink-codec client.
 """
 
 from __future__ import annotations
@@ -11,11 +11,12 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
+from mav_client import MavClient, VehicleThread
 from pymavlink.dialects.v20 import common as M
 
 from viva_sitl.autopilot import FlightMode, ParamStore
 from viva_sitl.mavlink import MavlinkConfig
-from viva_sitl.mavlink.selftest import MavClient, SnapshotCamera, VehicleThread
+from viva_sitl.mavlink.selftest import SnapshotCamera
 
 NAN = math.nan
 
@@ -319,7 +320,7 @@ def test_gcs_link_answers_whoever_talks(client: MavClient, vehicle: VehicleThrea
         # the GCS link streams the onboard rates by default (ATTITUDE 100 Hz)
         assert _rate(gcs, "ATTITUDE", 1.5) == pytest.approx(100.0, rel=0.3)
         assert vehicle.call(
-            lambda: vehicle.vehicle.autopilot._gcs_seen
+            lambda: vehicle.vehicle.autopilot.commander.gcs_seen
         )  # GCS heartbeat reached the autopilot
     finally:
         gcs.close()

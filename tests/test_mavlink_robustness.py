@@ -9,10 +9,10 @@ from collections.abc import Iterator
 
 import numpy as np
 import pytest
+from mav_client import MavClient, VehicleThread
 from pymavlink.dialects.v20 import common as M
 
 from viva_sitl.mavlink import MavlinkConfig
-from viva_sitl.mavlink.selftest import MavClient, VehicleThread
 
 NAN, INF = math.nan, math.inf
 

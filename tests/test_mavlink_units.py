@@ -10,13 +10,14 @@ import pytest
 from pymavlink.dialects.v20 import common as M
 
 from viva_sitl.autopilot import MissionCommand, ParamType
+from viva_sitl.config import SimConfig
 from viva_sitl.geo import GeoOrigin
 from viva_sitl.mavlink import MavlinkConfig, StreamProfile, VideoStreamSpec
 from viva_sitl.mavlink.base import statustext_messages
 from viva_sitl.mavlink.codec import DatagramParser, Encoder
 from viva_sitl.mavlink.mission import ItemError, WireItem, wire_to_item
 from viva_sitl.mavlink.params import decode_param_value, encode_param_value
-from viva_sitl.mavlink.selftest import MinimalVehicle
+from viva_sitl.mavlink.selftest import SelftestVehicle
 from viva_sitl.mavlink.telemetry import LinkStreams
 
 ENC = Encoder(255, 190)
@@ -163,7 +164,7 @@ def _wire(frame: int, command: int, x: int, y: int, z: float) -> WireItem:
 
 
 def test_mission_frames_convert_to_ned() -> None:
-    v = MinimalVehicle(geo=GeoOrigin(lat_deg=37.38, lon_deg=126.65, alt_amsl_m=10.0))
+    v = SelftestVehicle(SimConfig(home=GeoOrigin(lat_deg=37.38, lon_deg=126.65, alt_amsl_m=10.0)))
     v.step_once()
     lat, lon, _ = v.geo.ned_to_global(40.0, -25.0, 0.0)
     x, y = round(lat * 1e7), round(lon * 1e7)
@@ -202,7 +203,7 @@ def test_endpoint_start_errors_are_clear() -> None:
 
     from viva_sitl.mavlink import MavlinkEndpoint
 
-    vehicle = MinimalVehicle()
+    vehicle = SelftestVehicle()
     bad_host = MavlinkConfig(
         api_remote_host="no-such-host.invalid", api_local_port=0, gcs_local_port=0, gcs_remote_port=0
     )

@@ -1,6 +1,6 @@
 """Wiring: the only place that connects footage, dynamics, camera, autopilot, MAVLink and video.
 
-asyncio loop (one thread):  physics task (paced by the clock) -> Autopilot.update -> EAV step
+asyncio loop (one thread):  physics task (paced by the clock) -> Vehicle.step (Autopilot.update -> EAV step)
                             MavlinkEndpoint tasks (UDP I/O, telemetry, commands)
 render thread:              at the stream fps, snapshot the (frozen) state -> VAC render -> VideoPipeline.submit
 video worker threads:       encode + send (bounded queues; late frames dropped and counted)
@@ -25,10 +25,14 @@ from viva_sitl.autopilot import Autopilot, ParamStore
 from viva_sitl.clock import RealTimePacer, run_paced
 from viva_sitl.config import SimConfig
 from viva_sitl.dynamics import EavState
+from viva_sitl.evaluation.monitor import Limits
+from viva_sitl.evaluation.session import ScenarioSession, read_scenario_file, scenario_config
+from viva_sitl.evaluation.spec import Scenario
 from viva_sitl.frame import RenderedFrame
 from viva_sitl.geo import GeoOrigin
 from viva_sitl.mavlink import CameraInfo, CaptureResult, MavlinkEndpoint, StreamEncoding, VideoStreamSpec
 from viva_sitl.sim import Simulator
+from viva_sitl.vehicle import Vehicle
 from viva_sitl.video import FrameScheduler, VideoPipeline
 
 log = logging.getLogger("viva_sitl.app")
@@ -37,18 +41,25 @@ log = logging.getLogger("viva_sitl.app")
 class SitlApp:
     """One simulated vehicle: satisfies viva_sitl.mavlink's VehicleLink protocol."""
 
-    def __init__(self, config: SimConfig, *, video: bool = True, run_dir: Path | None = None) -> None:
+    def __init__(
+        self,
+        config: SimConfig,
+        *,
+        video: bool = True,
+        run_dir: Path | None = None,
+        scenario: tuple[Scenario, Limits] | None = None,
+    ) -> None:
         self.config = config
-        self.sim = Simulator(config)
-        self.params = ParamStore()
-        self.params.adopt("MAV_SYS_ID", config.mavlink.system_id)  # as PX4 SITL -i N
+        params = ParamStore()
+        params.adopt("MAV_SYS_ID", config.mavlink.system_id)  # as PX4 SITL -i N
+        self.vehicle = Vehicle(config, params=params)  # sets config.params (the [params] table)
+        self.sim: Simulator = self.vehicle.sim
+        self.params: ParamStore = self.vehicle.params
         for name, value in config.params:
-            self.params.set(name, value)
             spec = self.params.spec(name)
             if not spec.in_range(value):  # stored as PX4 stores it; say what the vehicle will use
                 log.warning("%s = %g is outside PX4's range [%g, %g]: stored, the vehicle uses %g",
                             name, value, spec.min, spec.max, self.params.get(name))  # fmt: skip
-        self.autopilot = Autopilot(self.params, config.physics, inside=self.sim.inside_footage)
         self.boot_wall_time_s = time.time()
         self.state_wall_time_s = self.boot_wall_time_s
         self.run_dir = run_dir or Path("runs") / time.strftime("%Y%m%d-%H%M%S")
@@ -64,10 +75,19 @@ class SitlApp:
                 self._render_tick, self.video.submit, config.video.fps, name="viva-render"
             )
         self.endpoint = MavlinkEndpoint(self, config.mavlink)
+        # --- a landing trial (`run --scenario FILE`): viva_sitl.evaluation.session ---------------------
+        self.trial: ScenarioSession | None = None
+        if scenario is not None:
+            self.trial = ScenarioSession(scenario[0], scenario[1], self.vehicle, self.run_dir)
+            self.endpoint.add_event_listener(self.trial.on_statustext)
         self._stopping = asyncio.Event()
         self._physics_task: asyncio.Task[None] | None = None
 
     # --- VehicleLink ----------------------------------------------------------------------
+    @property
+    def autopilot(self) -> Autopilot:
+        return self.vehicle.autopilot
+
     @property
     def state(self) -> EavState:
         return self.sim.state
@@ -130,15 +150,13 @@ class SitlApp:
 
     # --- loops ---------------------------------------------------------------------------
     def _step_once(self) -> None:
-        state = self.sim.state
-        self.sim.step(self.autopilot.update(state.time_s, state))
+        self.vehicle.step(1)
+        if self.trial is not None and self.trial.after_step():
+            self.stop()  # the trial is over (landed, crash, left the footage, timeout)
 
     def _after_batch(self) -> None:
         self.state_wall_time_s = time.time()
-        new_params = self.autopilot.eav_params()  # cached on the parameter revision: cheap
-        if new_params != self.sim.params:
-            self.sim.set_params(new_params)
-            self.pacer.dt_s = new_params.dt_s
+        self.pacer.dt_s = self.vehicle.dt_s
 
     def stop(self) -> None:
         self._stopping.set()
@@ -171,6 +189,8 @@ class SitlApp:
                 self.scheduler.stop()
             if self.video is not None:
                 self.video.stop()
+            if self.trial is not None:
+                self.trial.finish()
             self.sim.close()
             self._print_stats()
 
@@ -239,12 +259,18 @@ def config_from_args(args: argparse.Namespace) -> SimConfig:
     video = dataclasses.replace(video, **{k: v for k, v in video_updates.items() if v is not None})
     if args.mjpeg_port is not None:
         video = dataclasses.replace(video, mjpeg_rtp=True)
-    return dataclasses.replace(cfg, mavlink=mav, video=video, **sim_updates)  # type: ignore[arg-type]
+    cfg = dataclasses.replace(cfg, mavlink=mav, video=video, **sim_updates)  # type: ignore[arg-type]
+    if getattr(args, "scenario", None):  # a trial's start (pose, footage, parameters) over the config
+        cfg = scenario_config(cfg, read_scenario_file(args.scenario)[0])
+    return cfg
 
 
 def run_from_args(args: argparse.Namespace) -> int:
     cfg = config_from_args(args)
-    app = SitlApp(cfg, video=not args.no_video, run_dir=Path(args.run_dir) if args.run_dir else None)
+    scenario = read_scenario_file(args.scenario) if getattr(args, "scenario", None) else None
+    app = SitlApp(
+        cfg, video=not args.no_video, run_dir=Path(args.run_dir) if args.run_dir else None, scenario=scenario
+    )
 
     async def main() -> None:
         loop = asyncio.get_running_loop()

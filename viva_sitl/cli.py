@@ -76,6 +76,11 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument(
         "--no-video", action="store_true", help="no rendering and no video outputs (MAVLink only)"
     )
+    run.add_argument(
+        "--scenario",
+        help="a landing trial's scenario file (written by `viva-sitl trials run`): start pose, footage and its "
+        "start time, parameters, event schedule; the run ends when the trial does and writes its logs to --run-dir",
+    )
     run.add_argument("--run-dir", help="where the SDP file, captures and logs go (default ./runs/<time>)")
 
     render = sub.add_parser("render", help="render one VAC frame at a pose")

@@ -174,6 +174,7 @@ _WIRED_TABLE: tuple[tuple[str, ParamType, float, float, float, str], ...] = (
         "Manual control loss action in manual modes: 1 Hold, 2 Return, 3 Land, 5/6 Term.",
     ),
     ("COM_DISARM_LAND", _F, 2.0, -1.0, 20.0, "Auto-disarm this long after landing (s), < 0 = off"),
+    ("LNDMC_TRIG_TIME", _F, 1.0, 0.1, 10.0, "Land detector: time the landing conditions must hold (s)"),
     (
         "COM_DISARM_PRFLT",
         _F,

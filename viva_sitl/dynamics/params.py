@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field, replace
 
 
@@ -15,6 +16,9 @@ class WindParams:
     force_noise_std_n: float = 0.0  # N, white force noise per axis per step
 
 
+DEFAULT_THRUST_TO_WEIGHT = 2.0  # max thrust / weight when max_thrust_n is not given
+
+
 @dataclass(frozen=True)
 class EavParams:
     """The paper's discrete model parameters. `paper()` reproduces the reference implementation."""
@@ -24,7 +28,9 @@ class EavParams:
     gravity_m_s2: float = 9.81  # m/s²
     dt_s: float = 1.0 / 250.0  # s, physics step
     attitude_tau_s: float = 0.0  # s, first-order attitude response; 0 = ideal attitude controller (paper)
-    max_thrust_n: float = 2.0 * 0.468 * 9.81  # N, thrust ceiling (thrust commands are clipped to [0, max])
+    # N, thrust ceiling (thrust commands are clipped to [0, max]); NaN (default): DEFAULT_THRUST_TO_WEIGHT x weight,
+    # so a heavier airframe in [physics] still hovers with the same margin
+    max_thrust_n: float = math.nan
     max_tilt_rad: float = 1.0  # rad, commanded roll/pitch are clipped to +-this
     ground_z_ned_m: float = 0.0  # m, ground plane height in NED (z down): the vehicle cannot go below it
     wind: WindParams = field(default_factory=WindParams)
@@ -34,8 +40,16 @@ class EavParams:
             value = getattr(self, name)
             if not (value > 0.0):
                 raise ValueError(f"EavParams.{name} must be > 0, got {value!r}")
+        if math.isnan(self.max_thrust_n):
+            object.__setattr__(self, "max_thrust_n", DEFAULT_THRUST_TO_WEIGHT * self.hover_thrust_n)
         if self.drag_kd_n_s_m < 0.0 or self.attitude_tau_s < 0.0 or self.max_thrust_n <= 0.0:
             raise ValueError("EavParams: drag, attitude_tau_s must be >= 0 and max_thrust_n > 0")
+        if self.max_thrust_n <= self.hover_thrust_n:
+            raise ValueError(
+                f"EavParams: max_thrust_n {self.max_thrust_n:.3g} N cannot lift mass_kg {self.mass_kg:g} "
+                f"(weight {self.hover_thrust_n:.3g} N); raise max_thrust_n or leave it unset "
+                f"({DEFAULT_THRUST_TO_WEIGHT:g} x weight)"
+            )
 
     @property
     def hover_thrust_n(self) -> float:

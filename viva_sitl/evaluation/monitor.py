@@ -275,14 +275,12 @@ class TrialMonitor:
 
 
 def inject_battery_critical(v: MonitoredVehicle) -> None:
-    """Drop the remaining charge just below BAT_CRIT_THR through parameters only (what a real pack sagging to
-    critical looks like to PX4): SIM_BAT_MIN_PCT 0 and BAT1_CAPACITY shrunk so the used charge is that fraction."""
-    p, ap = v.params, v.autopilot
-    cap = p.get("BAT1_CAPACITY")
-    used = max((1.0 - ap.battery_remaining) * cap, 1e-3)
+    """Drain the battery to just below BAT_CRIT_THR now (SIM_BAT_MIN_PCT 0 so it may go that low): PX4's
+    "Critical battery level! Land now" warning follows at the next control step."""
+    p, battery = v.params, v.autopilot.ctx.battery
     target = max(0.0, p.get("BAT_CRIT_THR") - 0.01)
     p.set("SIM_BAT_MIN_PCT", 0.0)
-    p.set("BAT1_CAPACITY", max(used / (1.0 - target), 1e-3))
+    battery.used_mah = max(battery.used_mah, p.get("BAT1_CAPACITY") * (1.0 - target))
 
 
 def cut_gcs_link(autopilot: Autopilot) -> None:

@@ -8,13 +8,20 @@
 
 Modules, one per concern: codec (datagram parser, encoders), endpoint (links, peers, dispatch, tasks), telemetry
 (messages + per-link rates), commands (COMMAND_LONG/INT -> Autopilot), params, mission, offboard (setpoint decoding),
-camera (compid 100), selftest (a minimal vehicle + `python -m viva_sitl.mavlink.selftest` + test/bench helpers).
+camera (compid 100; its CameraLink protocol and data types in camera_link), selftest (a minimal vehicle for
+`python -m viva_sitl.mavlink.selftest`; the test clients live in tests/mav_client.py).
 The endpoint consumes Autopilot.pop_events() (STATUSTEXT, MISSION_ITEM_REACHED); add_event_listener() lets the app
 log the same texts.
 """
 
 from viva_sitl.mavlink.base import Component, LinkKind, VehicleLink
-from viva_sitl.mavlink.camera import CameraInfo, CameraLink, CaptureResult, StreamEncoding, VideoStreamSpec
+from viva_sitl.mavlink.camera_link import (
+    CameraInfo,
+    CameraLink,
+    CaptureResult,
+    StreamEncoding,
+    VideoStreamSpec,
+)
 from viva_sitl.mavlink.endpoint import EndpointStats, MavlinkConfig, MavlinkEndpoint
 from viva_sitl.mavlink.telemetry import StreamProfile
 

@@ -9,18 +9,17 @@ import enum
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Protocol, TypeAlias
+from typing import Protocol, TypeAlias
 
 from pymavlink.dialects.v20 import common as mavlink2
 
 from viva_sitl.autopilot.autopilot import Autopilot
 from viva_sitl.dynamics import EavState
 from viva_sitl.geo import GeoOrigin
-
-if TYPE_CHECKING:
-    from viva_sitl.mavlink.camera import CameraLink
+from viva_sitl.mavlink.camera_link import CameraLink
 
 MavMessage: TypeAlias = mavlink2.MAVLink_message
+M = mavlink2
 
 STATUSTEXT_CHUNK_CHARS = (
     50  # STATUSTEXT.text is char[50]; longer texts go out in chunks (MAVLink 2 id/chunk_seq)
@@ -118,6 +117,47 @@ def clamp_int(value: float, lo: int, hi: int) -> int:
     if not math.isfinite(value):
         return lo if value < 0 else (hi if value > 0 else max(lo, min(hi, 0)))
     return max(lo, min(hi, int(round(value))))
+
+
+@dataclass(frozen=True)
+class CommandRequest:
+    """A COMMAND_LONG or COMMAND_INT, normalised. lat/lon in degrees (NaN = not given), alt in `frame`."""
+
+    command: int
+    p1: float
+    p2: float
+    p3: float
+    p4: float
+    lat_deg: float
+    lon_deg: float
+    alt_m: float
+    frame: int  # COMMAND_LONG: MAV_FRAME_GLOBAL (param7 AMSL, as PX4 reads it)
+    is_int: bool
+    target_component: int
+
+    @classmethod
+    def from_long(cls, msg: MavMessage) -> CommandRequest:
+        return cls(
+            int(msg.command), float(msg.param1), float(msg.param2), float(msg.param3), float(msg.param4),
+            float(msg.param5), float(msg.param6), float(msg.param7), M.MAV_FRAME_GLOBAL, False,
+            int(msg.target_component),
+        )  # fmt: skip
+
+    @classmethod
+    def from_int(cls, msg: MavMessage) -> CommandRequest:
+        x, y = int(msg.x), int(msg.y)
+        # INT32_MAX marks "not given"; (0, 0) is never a real target either (PX4 reads it as unset)
+        unset = x == INT32_MAX or y == INT32_MAX or (x == 0 and y == 0)
+        lat = math.nan if unset else x * 1e-7
+        lon = math.nan if unset else y * 1e-7
+        return cls(
+            int(msg.command), float(msg.param1), float(msg.param2), float(msg.param3), float(msg.param4),
+            lat, lon, float(msg.z), int(msg.frame), True, int(msg.target_component),
+        )  # fmt: skip
+
+    @property
+    def params(self) -> tuple[float, float, float, float, float, float, float]:
+        return (self.p1, self.p2, self.p3, self.p4, self.lat_deg, self.lon_deg, self.alt_m)
 
 
 EventListener = Callable[[str, int], None]  # (text, severity) for the app's log

@@ -11,12 +11,11 @@ from __future__ import annotations
 import logging
 import math
 from collections.abc import Callable
-from dataclasses import dataclass
 
 from pymavlink.dialects.v20 import common as mavlink2
 
 from viva_sitl.autopilot.types import CommandResult, FlightMode, Outcome, Severity
-from viva_sitl.mavlink.base import INT32_MAX, MavMessage, Origin, Outbox, StatusSink, VehicleLink
+from viva_sitl.mavlink.base import CommandRequest, MavMessage, Origin, Outbox, StatusSink, VehicleLink
 
 log = logging.getLogger(__name__)
 M = mavlink2
@@ -26,47 +25,6 @@ FORCE_MAGIC = 21196  # COMPONENT_ARM_DISARM param2: force (arm without checks / 
 _AMSL_FRAMES = {M.MAV_FRAME_GLOBAL, M.MAV_FRAME_GLOBAL_INT}
 _RELATIVE_FRAMES = {M.MAV_FRAME_GLOBAL_RELATIVE_ALT, M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT}
 _TERRAIN_FRAMES = {M.MAV_FRAME_GLOBAL_TERRAIN_ALT, M.MAV_FRAME_GLOBAL_TERRAIN_ALT_INT}
-
-
-@dataclass(frozen=True)
-class CommandRequest:
-    """A COMMAND_LONG or COMMAND_INT, normalised. lat/lon in degrees (NaN = not given), alt in `frame`."""
-
-    command: int
-    p1: float
-    p2: float
-    p3: float
-    p4: float
-    lat_deg: float
-    lon_deg: float
-    alt_m: float
-    frame: int  # COMMAND_LONG: MAV_FRAME_GLOBAL (param7 AMSL, as PX4 reads it)
-    is_int: bool
-    target_component: int
-
-    @classmethod
-    def from_long(cls, msg: MavMessage) -> CommandRequest:
-        return cls(
-            int(msg.command), float(msg.param1), float(msg.param2), float(msg.param3), float(msg.param4),
-            float(msg.param5), float(msg.param6), float(msg.param7), M.MAV_FRAME_GLOBAL, False,
-            int(msg.target_component),
-        )  # fmt: skip
-
-    @classmethod
-    def from_int(cls, msg: MavMessage) -> CommandRequest:
-        x, y = int(msg.x), int(msg.y)
-        # INT32_MAX marks "not given"; (0, 0) is never a real target either (PX4 reads it as unset)
-        unset = x == INT32_MAX or y == INT32_MAX or (x == 0 and y == 0)
-        lat = math.nan if unset else x * 1e-7
-        lon = math.nan if unset else y * 1e-7
-        return cls(
-            int(msg.command), float(msg.param1), float(msg.param2), float(msg.param3), float(msg.param4),
-            lat, lon, float(msg.z), int(msg.frame), True, int(msg.target_component),
-        )  # fmt: skip
-
-    @property
-    def params(self) -> tuple[float, float, float, float, float, float, float]:
-        return (self.p1, self.p2, self.p3, self.p4, self.lat_deg, self.lon_deg, self.alt_m)
 
 
 # (origin, message id, request params p2..p7) -> messages to send, or None when this vehicle cannot produce it

@@ -233,15 +233,13 @@ class MavlinkEndpoint:
         self._statustext_id = 0
         self._last_setpoint_warn = -math.inf
         self._loop: asyncio.AbstractEventLoop | None = None
-        ap = vehicle.autopilot
         self.telemetry = TelemetryBuilder(vehicle, self.sysid)
-        prearm = getattr(ap, "prearm_check", None)
-        if callable(prearm):
-            self.telemetry.prearm_ok = lambda: bool(prearm(self.vehicle.time_s).ok)
+        # looked up per call: Vehicle.reset replaces the autopilot
+        self.telemetry.prearm_ok = lambda: bool(self.vehicle.autopilot.prearm_check(self.vehicle.time_s).ok)
         self.commands = CommandHandler(
             vehicle, self, self._statustext, self._request_message, self._set_interval, self._get_interval
         )
-        self.params = ParamProtocol(ap.params, self, self._statustext)
+        self.params = ParamProtocol(vehicle.autopilot.params, self, self._statustext)
         self.ftp = FtpServer(self)
         limits = MissionLimits(
             self.config.mission_max_items, self.config.mission_retry_s, self.config.mission_max_retries

@@ -1,0 +1,149 @@
+"""Failsafe evaluation (PX4's FailsafeBase, reduced): a pure function from what the vehicle knows now to the actions
+the commander must take. No state is changed here: the latched flags come in and go out.
+
+Checks, in order: offboard loss (COM_OF_LOSS_T -> COM_OBL_RC_ACT), manual control loss in manual modes
+(COM_RC_LOSS_T -> NAV_RCL_ACT, once per loss), ground-station link loss once a GCS was seen (COM_DL_LOSS_T ->
+NAV_DLL_ACT, in the air), the footage-edge geofence (GF_ACTION, once per exit, in the air), and the battery level
+(BAT_LOW_THR / BAT_CRIT_THR, a warning once per crossing).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+from viva_sitl.autopilot.params import ParamStore
+from viva_sitl.autopilot.types import FlightMode, Severity
+
+_MANUAL_MODES = frozenset({FlightMode.MANUAL, FlightMode.STABILIZED, FlightMode.ALTCTL, FlightMode.POSCTL})
+_NAV_ACTIONS = (
+    1,
+    2,
+    3,
+    5,
+    6,
+)  # PX4 failsafe action codes this vehicle flies: Hold, Return, Land, Terminate, Lockdown
+
+
+@dataclass(frozen=True)
+class FailsafeInputs:
+    now_s: float
+    mode: FlightMode
+    armed: bool
+    in_air: bool  # armed and not on the ground
+    offboard_last_s: float  # when the last offboard setpoint arrived
+    manual_fresh: bool  # MANUAL_CONTROL within COM_RC_LOSS_T
+    gcs_seen: bool
+    gcs_last_s: float
+    inside: bool | None  # the geofence test now; None: not evaluated this step
+    pos_ned_m: tuple[float, float, float]
+
+
+@dataclass(frozen=True)
+class FailsafeFlags:
+    """What the evaluation latches between steps."""
+
+    dll_lost: bool = False
+    rc_lost_handled: bool = False
+    gf_outside: bool = False
+    last_inside_ned_m: tuple[float, float, float] | None = None
+
+
+@dataclass(frozen=True)
+class SwitchMode:
+    """Enter `mode`; then, when `text`, a WARNING with it."""
+
+    mode: FlightMode
+    text: str | None = None
+
+
+@dataclass(frozen=True)
+class ApplyFailsafe:
+    """A PX4 failsafe action code: 1 Hold, 2 Return, 3 Land, 5 Terminate, 6 Lockdown (5 and 6 disarm)."""
+
+    action: int
+    reason: str
+    kind: str
+
+
+@dataclass(frozen=True)
+class HoldAt:
+    """Enter Hold at `pos_ned_m` (None: at the braking point)."""
+
+    pos_ned_m: tuple[float, float, float] | None
+
+
+@dataclass(frozen=True)
+class Notify:
+    severity: Severity
+    text: str
+
+
+Action = SwitchMode | ApplyFailsafe | HoldAt | Notify
+
+_OBL_TO_ACTION = {0: 1, 1: 1, 2: 1, 3: 2, 4: 3, 5: 1, 6: 5, 7: 6}  # COM_OBL_RC_ACT without RC -> action code
+_OBL_TO_MODE = {0: FlightMode.POSCTL, 1: FlightMode.ALTCTL, 2: FlightMode.STABILIZED}
+
+
+def evaluate(inp: FailsafeInputs, flags: FailsafeFlags, p: ParamStore) -> tuple[FailsafeFlags, list[Action]]:
+    """The actions due now and the new flags (reads the parameters only)."""
+    out: list[Action] = []
+    # Offboard loss.
+    if inp.mode == FlightMode.OFFBOARD and inp.now_s - inp.offboard_last_s > p.get("COM_OF_LOSS_T"):
+        act = p.get_int("COM_OBL_RC_ACT")
+        if act in _OBL_TO_MODE and inp.manual_fresh:
+            target = _OBL_TO_MODE[act]
+            out.append(SwitchMode(target, f"Failsafe activated (offboard lost): switching to {target.name}"))
+        elif not inp.armed:
+            out.append(SwitchMode(FlightMode.AUTO_LOITER))
+        else:
+            out.append(ApplyFailsafe(_OBL_TO_ACTION.get(act, 1), "no offboard", "Offboard lost"))
+    # Manual control loss in manual modes (once per loss).
+    if inp.mode in _MANUAL_MODES and inp.armed and not inp.manual_fresh:
+        if not flags.rc_lost_handled:
+            flags = replace(flags, rc_lost_handled=True)
+            act = p.get_int("NAV_RCL_ACT")
+            out.append(ApplyFailsafe(act if act in _NAV_ACTIONS else 1, "manual control lost", "RC lost"))
+    elif inp.manual_fresh:
+        flags = replace(flags, rc_lost_handled=False)
+    # Ground-station link loss (only once a GCS has been seen).
+    if inp.gcs_seen and not flags.dll_lost and inp.now_s - inp.gcs_last_s > p.get("COM_DL_LOSS_T"):
+        flags = replace(flags, dll_lost=True)
+        act = p.get_int("NAV_DLL_ACT")
+        out.append(Notify(Severity.CRITICAL, "Connection to ground station lost"))
+        if inp.in_air and act in _NAV_ACTIONS:
+            out.append(ApplyFailsafe(act, "no GCS", "GCS lost"))
+    # Geofence: the footage edge.
+    if inp.inside is True:
+        flags = replace(flags, gf_outside=False, last_inside_ned_m=inp.pos_ned_m)
+    elif inp.inside is False and not flags.gf_outside:
+        flags = replace(flags, gf_outside=True)
+        act = p.get_int("GF_ACTION")
+        if inp.in_air and act >= 1:
+            out.append(Notify(Severity.CRITICAL, "Geofence breached: outside footage"))
+            if act == 2:
+                last = flags.last_inside_ned_m
+                # hold where the camera still saw footage, at the current altitude
+                out.append(HoldAt(None if last is None else (last[0], last[1], inp.pos_ned_m[2])))
+                out.append(Notify(Severity.WARNING, "Failsafe activated (geofence): switching to Hold"))
+            elif act in (3, 5):
+                out.append(ApplyFailsafe({3: 2, 5: 3}[act], "geofence", "Geofence"))
+            elif act == 4:
+                out.append(ApplyFailsafe(5, "geofence", "Geofence"))
+    return flags, out
+
+
+def battery_level(remaining: float, p: ParamStore) -> int:
+    """0 ok, 1 low (BAT_LOW_THR), 2 critical (BAT_CRIT_THR)."""
+    return 2 if remaining <= p.get("BAT_CRIT_THR") else 1 if remaining <= p.get("BAT_LOW_THR") else 0
+
+
+def battery_warning(level: int, remaining: float) -> Notify | None:
+    if level == 1:
+        return Notify(
+            Severity.WARNING, f"Low battery level! Return advised ({remaining * 100:.0f}% remaining)"
+        )
+    if level == 2:
+        return Notify(
+            Severity.CRITICAL, f"Critical battery level! Land now ({remaining * 100:.0f}% remaining)"
+        )
+    return None

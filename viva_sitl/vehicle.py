@@ -1,0 +1,138 @@
+"""One vehicle loop: the simulator (EAV + VAC over footage), the PX4 parameters and the autopilot, stepped together.
+
+    vehicle = Vehicle(SimConfig())                 # synthetic footage; cheap (no video, nothing rendered yet)
+    vehicle.reset(seed=0, pos_ned_m=(0, 0, 0), yaw_rad=0.0)
+    vehicle.autopilot.arm(vehicle.time_s); vehicle.autopilot.takeoff(vehicle.time_s, 5.0)
+    state = vehicle.step(250)                      # 250 physics steps: autopilot.update -> EAV step, each
+    frame = vehicle.render()                       # the VAC view at the current state
+
+Free-running and headless: nothing here reads a clock or does I/O; the caller owns time (the app paces `step` with
+clock.run_paced, tests and trials call it as fast as they like). The SIM_* parameters (mass, drag, wind) reach the
+physics before every step, so a PARAM_SET between two steps applies to the next one.
+
+This is the only place that steps the autopilot and the physics together: the app, the MAVLink selftest vehicle, the
+tests, the trials runner and the Gymnasium environment all drive a Vehicle.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+
+from viva_sitl.autopilot import Autopilot, ParamStore
+from viva_sitl.config import SimConfig
+from viva_sitl.dynamics import EavCommand, EavParams, EavState
+from viva_sitl.footage import FootageSource
+from viva_sitl.frame import RenderedFrame
+from viva_sitl.geo import GeoOrigin
+from viva_sitl.sim import Simulator
+
+InsideFn = Callable[[float, float], bool]
+
+
+class Vehicle:
+    """The simulator + ParamStore + Autopilot. `geofence`: True = the footage edge (Simulator.inside_footage),
+    False = no fence (an open world), or any (north_m, east_m) -> bool test."""
+
+    def __init__(
+        self,
+        config: SimConfig | None = None,
+        *,
+        footage: str | Path | FootageSource | None = None,
+        geofence: bool | InsideFn = True,
+        params: ParamStore | None = None,
+        region_render: bool = True,
+        prefetch: bool = False,
+    ) -> None:
+        self.config = config or SimConfig()
+        self.sim = Simulator(self.config, footage, region_render=region_render, prefetch=prefetch)
+        self.params = params if params is not None else ParamStore()
+        for name, value in self.config.params:
+            self.params.set(name, value)
+        if geofence is True:
+            self.inside: InsideFn | None = self.sim.inside_footage
+        elif geofence is False:
+            self.inside = None
+        else:
+            self.inside = geofence
+        self.autopilot = Autopilot(self.params, self.config.physics, inside=self.inside)
+        self.autopilot.start(self.time_s, self.state)  # home and pre-arm checks valid before the first step
+        self.steps = 0  # physics steps since construction (all resets included)
+        self._applied: EavParams = self.sim.params
+
+    # --- state -------------------------------------------------------------------------
+    @property
+    def state(self) -> EavState:
+        return self.sim.state
+
+    @property
+    def time_s(self) -> float:
+        return float(self.sim.state.time_s)
+
+    @property
+    def dt_s(self) -> float:
+        """The physics step now in use (SIM_* parameters never change it; the config does)."""
+        return self.sim.params.dt_s
+
+    @property
+    def geo(self) -> GeoOrigin:
+        return self.sim.geo
+
+    # --- loop ----------------------------------------------------------------------------
+    def reset(
+        self,
+        seed: int | None = None,
+        pos_ned_m: tuple[float, float, float] | None = None,
+        yaw_rad: float | None = None,
+        vel_ned_m_s: tuple[float, float, float] = (0.0, 0.0, 0.0),
+    ) -> EavState:
+        """A fresh flight: the simulator reset (seeded disturbances and sensor noise, pose) and a new Autopilot
+        (disarmed on the ground, or armed in Hold for an air start) on the same parameters, as after a reboot. The
+        autopilot has seen the initial state: arming is possible before the first step."""
+        state = self.sim.reset(seed, pos_ned_m, yaw_rad, vel_ned_m_s)
+        self.autopilot = Autopilot(self.params, self.config.physics, inside=self.inside)
+        self.autopilot.start(state.time_s, state)
+        self._sync_params()
+        return state
+
+    def _sync_params(self) -> None:
+        new = self.autopilot.eav_params()  # cached on the parameter revision: an identity test per step
+        if new is not self._applied:
+            self._applied = new
+            if new != self.sim.params:
+                self.sim.set_params(new)
+
+    def step(self, n: int = 1) -> EavState:
+        """n physics steps, each: SIM_* parameters -> physics, autopilot.update(state) -> EAV step."""
+        sim, ap = self.sim, self.autopilot
+        for _ in range(n):
+            self._sync_params()
+            s = sim.state
+            sim.step(ap.update(s.time_s, s))
+        self.steps += n
+        return sim.state
+
+    def step_command(self, cmd: EavCommand, n: int = 1) -> EavState:
+        """n physics steps holding `cmd`, the autopilot bypassed (direct attitude/thrust control, e.g. a gym agent)."""
+        self._sync_params()
+        self.steps += n
+        return self.sim.step(cmd, n)
+
+    # --- camera --------------------------------------------------------------------------
+    def render(self, state: EavState | None = None, wall_time_s: float | None = None) -> RenderedFrame:
+        return self.sim.render(state, wall_time_s=wall_time_s)
+
+    def inside_footage(self, north_m: float, east_m: float) -> bool:
+        return self.sim.inside_footage(north_m, east_m)
+
+    def close(self) -> None:
+        self.sim.close()
+
+    def __enter__(self) -> Vehicle:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+__all__ = ["InsideFn", "Vehicle"]
