@@ -340,3 +340,38 @@ def test_cli_interrupt_keeps_finished_trials_and_resume_completes(tmp_path: Path
     show = subprocess.run([sys.executable, "-m", "viva_sitl", "trials", "show", str(out), "--trial", "1"],
                           cwd=REPO, capture_output=True, text=True, timeout=60)  # fmt: skip
     assert show.returncode == 0 and "land_now" in show.stdout and "touchdown" in show.stdout
+
+
+class HoldPilot:
+    """Does nothing: whatever happens is the autopilot's failsafes."""
+
+    name, control_hz, frame_hz, uses_ground_truth = "hold", 2.0, 0.0, False
+
+    def reset(self, scenario: Scenario, truth: object) -> None:
+        pass
+
+    def act(self, obs, ctl):  # type: ignore[no-untyped-def]
+        return None
+
+
+def test_injected_failures_reach_the_autopilot(tmp_path: Path) -> None:
+    """battery_critical drains the pack below BAT_CRIT_THR (PX4's warning); gcs_link_lost silences the ground
+    station: after COM_DL_LOSS_T the NAV_DLL_ACT = 3 failsafe lands the vehicle, which the scores count."""
+    from viva_sitl.evaluation.runner import run_inprocess_trial
+
+    d = json.loads(json.dumps(SHORT))
+    d["scenario"].update(land_at_s=35.0, params={"NAV_DLL_ACT": 3, "COM_DL_LOSS_T": 5},
+                         failures=[{"kind": "battery_critical", "at_s": 1.0}, {"kind": "gcs_link_lost", "at_s": 2.0}])  # fmt: skip
+    spec = spec_from_dict(d, "fail")
+    sc = draw_scenarios(spec, 1)[0]
+    assert [(f.kind, f.at_s) for f in sc.failures] == [("battery_critical", 1.0), ("gcs_link_lost", 2.0)]
+    row = run_inprocess_trial(spec, sc, "tests.test_trials:HoldPilot", tmp_path)
+    ev = [json.loads(x) for x in (tmp_path / "events.jsonl").read_text().splitlines()]
+    texts = [(e["kind"], e["text"]) for e in ev]
+    crit = next(e for e in ev if "Critical battery level" in e["text"])
+    lost = next(e for e in ev if e["text"] == "Connection to ground station lost")
+    # heartbeats at 0, 1 s; cut at 2 s before the next one: last heard at 1 s, lost COM_DL_LOSS_T = 5 s later
+    assert 1.0 <= crit["t_s"] < 1.1 and 6.0 <= lost["t_s"] < 6.1, texts
+    assert ("failsafe", "Failsafe activated (no GCS): switching to Land") in texts
+    assert row["end"] == "landed" and row["failsafes"] == 1 and "switching to Land" in row["failsafe_texts"]
+    assert row["time_to_land_s"] is None  # it landed before being told to: no "time to land" to report
