@@ -46,8 +46,11 @@ def short_spec(**trials: object) -> TrialSpec:
 
 
 def test_example_specs_load_and_draw() -> None:
+    shared = REPO.parent / "shared" / "footage"
     for path in sorted(SPEC_DIR.glob("*.toml")):
         spec = load_spec(path)
+        if any(f != "synthetic" for f in spec.footage) and not shared.is_dir():
+            continue  # real footage lives in ../shared (absent here)
         scen = draw_scenarios(spec, 3)
         assert len(scen) == 3 and all(s.footage in spec.footage for s in scen), path
 
@@ -104,7 +107,7 @@ def test_bad_spec_file_from_cli_is_one_line(tmp_path: Path) -> None:
                        capture_output=True, text=True, timeout=120, cwd=REPO)  # fmt: skip
     assert r.returncode == 2
     assert r.stderr.strip().splitlines() == [f"viva-sitl trials: {p}.trials.colour: unknown key (known: name, n, "
-                                              "seed, timeout_s, pilot, speed, end_outside_s, crash_speed_m_s, log_hz)"]  # fmt: skip
+                                              "seed, timeout_s, pilot, speed, end_outside_s, crash_speed_m_s, log_hz, frames)"]  # fmt: skip
 
 
 def test_scenarios_are_a_function_of_seed_and_index() -> None:
@@ -252,6 +255,16 @@ def test_inprocess_pilots_end_to_end_pool_determinism_and_single_trial(tmp_path:
         assert math.hypot(r["touchdown_north_m"] - s.north_m, r["touchdown_east_m"] - s.east_m) < 2.0
     for r in o.ordered_rows():  # the oracle picks a safe spot: low risk, away from people
         assert r["risk_level"] <= 2 and r["min_dist_person_m"] >= 5.0 and r["success"] is True
+    # trials compare: paired on the same scenarios, the oracle at least as good as descend
+    from viva_sitl.evaluation.cli import trials_main
+
+    cmp_path = tmp_path / "cmp.json"
+    assert trials_main(["compare", str(d.out_dir), str(o.out_dir), "-o", str(cmp_path)]) == 0
+    cmp = json.loads(cmp_path.read_text())
+    assert cmp["pairs"] == 3 and cmp["same_scenarios"] is True and cmp["success"]["only_a"] == 0
+    assert (
+        cmp["success"]["rate_b"] == 1.0 and cmp["a"]["pilot"] == "descend" and cmp["b"]["pilot"] == "oracle"
+    )
     # same scenarios, one worker: identical results; trial 2 alone reproduces trial 2
     d1 = run_campaign(spec, "descend", tmp_path / "descend-1job", jobs=1, progress=False)
     assert rows_equal(d1.ordered_rows(), d.ordered_rows())

@@ -78,7 +78,7 @@ def run_one(spec: TrialSpec, scenario: Scenario, pilot: str, out_dir: Path, slot
         else:
             from viva_sitl.evaluation.external import run_external_trial
 
-            row = run_external_trial(spec, scenario, pilot, tdir, slot=slot, video=video,
+            row = run_external_trial(spec, scenario, pilot, tdir, slot=slot, video=video, frames=spec.frames,
                                      wall_limit_s=default_wall_limit_s(spec, pilot) * 0.9)  # fmt: skip
     except Exception as exc:  # noqa: BLE001 - one trial's failure never takes the campaign down
         row = failed_row(spec, scenario, "trial_error", f"{type(exc).__name__}: {exc}")

@@ -7,7 +7,8 @@
 Spec layout (units in the names; a range is `[lo, hi]` drawn uniformly, a number is fixed, a list of strings is a
 choice):
 
-    [trials]   name, n, seed, timeout_s (sim s), pilot, speed (external pilots), final_descent_below_m,
+    [trials]   name, n, seed, timeout_s (sim s), pilot, speed and frames (external pilots: --speed, and whether
+               the VAC is rendered for the frame socket / RTP video),
                end_outside_s (a trial ends after this long with the ground point outside the footage),
                crash_speed_m_s (a touchdown faster than this is a crash), log_hz
     [scenario] footage (list), start ("air" | "ground" | both), north_m, east_m (ranges; default: the footage
@@ -15,8 +16,9 @@ choice):
                s after the start), wind_speed_m_s, wind_dir_deg (where the wind blows *from*), gust_std_m_s
     [scenario.params]      PX4 parameter = number or [lo, hi] (e.g. MPC_LAND_SPEED, SIM_MASS)
     [[scenario.failures]]  kind = "gcs_link_lost" | "battery_critical", at_s = [lo, hi], probability = 0..1
-    [scoring]  final_descent_below_m, and [scoring.criterion]: name, landed, max_touchdown_speed_m_s,
-               min_dist_person_m, min_dist_vehicle_m, max_risk_level
+    [scoring]  final_descent_below_m, and criterion = {name, landed, max_touchdown_speed_m_s,
+               min_dist_person_m, min_dist_vehicle_m, max_risk_level}: the checks it names (landed: default true);
+               without it: "safe" = landed, touchdown speed < 1 m/s, >= 5 m from people, risk <= 2
 
 Unknown keys and impossible ranges raise ConfigError with the key named (one line).
 """
@@ -89,6 +91,7 @@ class TrialSpec:
     end_outside_s: float = 2.0
     crash_speed_m_s: float = 3.0
     log_hz: float = 25.0
+    frames: bool = False  # external pilots: render the VAC and serve the frame socket / RTP video
     footage: tuple[str, ...] = ("synthetic",)
     start: tuple[str, ...] = ("air",)
     north_m: Range | None = None
@@ -196,7 +199,8 @@ class Scenario:
 
 
 _TABLES = {
-    "trials": ("name", "n", "seed", "timeout_s", "pilot", "speed", "end_outside_s", "crash_speed_m_s", "log_hz"),
+    "trials": ("name", "n", "seed", "timeout_s", "pilot", "speed", "end_outside_s", "crash_speed_m_s", "log_hz",
+               "frames"),
     "scenario": ("footage", "start", "north_m", "east_m", "margin_m", "altitude_m", "yaw_deg", "footage_time_s",
                  "land_at_s", "wind_speed_m_s", "wind_dir_deg", "gust_std_m_s", "params", "failures"),
     "scoring": ("final_descent_below_m", "criterion"),
@@ -277,6 +281,10 @@ def spec_from_dict(data: dict[str, Any], where: str = "spec") -> TrialSpec:
             if isinstance(v, bool) or not isinstance(v, int) or v < (1 if key == "n" else 0):
                 raise ConfigError(f"{w}.{key}: expected an integer >= {1 if key == 'n' else 0}, got {v!r}")
             kw[key] = v
+    if "frames" in t:
+        if not isinstance(t["frames"], bool):
+            raise ConfigError(f"{w}.frames: expected true/false")
+        kw["frames"] = t["frames"]
     for key in ("timeout_s", "speed", "crash_speed_m_s", "log_hz"):
         if key in t:
             kw[key] = _positive(t[key], f"{w}.{key}")
@@ -371,7 +379,8 @@ def _criterion(table: Any, where: str) -> Criterion:
     if not isinstance(table, dict):
         raise ConfigError(f"{where}: expected a table")
     names = [f.name for f in dataclasses.fields(Criterion)]
-    kw: dict[str, Any] = {}
+    # a criterion written out checks what it names: the checks it leaves out are off (landed stays on)
+    kw: dict[str, Any] = {k: None for k in names if k not in ("name", "landed")}
     for key, v in table.items():
         if key not in names:
             raise _unknown(where, key, names)
