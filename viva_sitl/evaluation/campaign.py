@@ -25,6 +25,7 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from multiprocessing.connection import Connection
 from pathlib import Path
+from queue import Empty
 from typing import Any
 
 from viva_sitl.evaluation.pilots import is_inprocess, make_pilot
@@ -167,7 +168,7 @@ def _local(spec: TrialSpec, pilot: str, todo: list[Scenario], out_dir: Path, job
         while pending:
             try:
                 slot, index, row = results.get(timeout=0.5)
-            except Exception:  # noqa: BLE001 - queue.Empty: check the workers
+            except Empty:  # nothing finished: check the workers
                 now = time.monotonic()
                 for k, s in list(slots.items()):
                     if s.index is None:
@@ -301,6 +302,8 @@ def run_campaign(
     out.mkdir(parents=True, exist_ok=True)
     scenarios = draw_scenarios(spec, n, seed)
     if only is not None:
+        if (out / "results.json").exists() and not resume:
+            raise ValueError(f"{out} holds a run already: give --trial its own output directory (-o)")
         bad = [k for k in only if not 0 <= k < len(scenarios)]
         if bad:
             raise ValueError(f"--trial {bad[0]}: no such trial (0..{len(scenarios) - 1})")

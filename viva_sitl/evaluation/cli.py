@@ -119,7 +119,8 @@ def _run(args: argparse.Namespace) -> int:
     spec = load_spec(args.spec)
     pilot = args.pilot or spec.pilot
     safe = "".join(ch if ch.isalnum() or ch in "-_" else "_" for ch in pilot.split("/")[-1])[:40]
-    out = Path(args.out) if args.out else Path("trials-out") / f"{spec.name}-{safe}"
+    name = f"{spec.name}-{safe}" + ("-trial-" + "-".join(map(str, args.trial)) if args.trial else "")
+    out = Path(args.out) if args.out else Path("trials-out") / name
     try:
         camp = run_campaign(
             spec, pilot, out, n=args.n, seed=args.seed, jobs=args.jobs, backend=args.backend,

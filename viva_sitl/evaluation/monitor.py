@@ -146,6 +146,7 @@ class TrialMonitor:
         self._outside_since: float | None = None
         self._inside = True
         self.land_now = False
+        self._volts = 0.0  # battery voltage, refreshed at the log rate (energy = sum of V I dt)
         self.new_events: list[dict[str, Any]] = []  # since the pilot last looked (in-process observation)
 
     def t_of(self, state: EavState) -> float:
@@ -247,8 +248,6 @@ class TrialMonitor:
             self._end(v, s, t, "landed", "touchdown and disarm")
         elif t >= self.limits.timeout_s - 1e-9:
             self._end(v, s, t, "timeout", f"not landed and disarmed after {self.limits.timeout_s:g} s")
-
-    _volts = 0.0
 
     def _sample(self, v: MonitoredVehicle, s: EavState, t: float) -> None:
         p, vel, att = s.pos_ned_m, s.vel_ned_m_s, s.att_rpy_rad

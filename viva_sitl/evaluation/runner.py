@@ -24,7 +24,7 @@ from viva_sitl.evaluation.scoring import score_trial
 from viva_sitl.evaluation.spec import Scenario, TrialSpec
 from viva_sitl.footage import FootageSource, open_footage
 from viva_sitl.vehicle import Vehicle
-from viva_sitl.world import WorldModel, load_world, world_from_source
+from viva_sitl.world import WorldModel, world_from_source
 
 _SOURCES: dict[str, FootageSource] = {}
 _WORLDS: dict[str, WorldModel] = {}
@@ -38,10 +38,7 @@ def footage_source(name: str) -> FootageSource:
 
 def world_of(name: str) -> WorldModel:
     if name not in _WORLDS:
-        try:
-            _WORLDS[name] = world_from_source(footage_source(name))
-        except Exception:  # noqa: BLE001 - fall back to the loader's own resolution (metadata file)
-            _WORLDS[name] = load_world(name)
+        _WORLDS[name] = world_from_source(footage_source(name))
     return _WORLDS[name]
 
 
