@@ -388,3 +388,17 @@ def test_injected_failures_reach_the_autopilot(tmp_path: Path) -> None:
     assert ("failsafe", "Failsafe activated (no GCS): switching to Land") in texts
     assert row["end"] == "landed" and row["failsafes"] == 1 and "switching to Land" in row["failsafe_texts"]
     assert row["time_to_land_s"] is None  # it landed before being told to: no "time to land" to report
+
+
+def test_trial_video_at_the_camera_rate(tmp_path: Path) -> None:
+    import av
+
+    from viva_sitl.evaluation.runner import run_inprocess_trial
+
+    spec = spec_from_dict({"trials": {"timeout_s": 6.0}, "scenario": {"north_m": [-5.0, 5.0], "east_m": [-5.0, 5.0],
+                                                                      "altitude_m": 10.0, "land_at_s": 1.0}}, "v")  # fmt: skip
+    row = run_inprocess_trial(spec, draw_scenarios(spec, 1)[0], "descend", tmp_path, video=True)
+    assert row["end"] == "timeout"  # 6 s is too short to land from 10 m
+    with av.open(str(tmp_path / "vac.mp4")) as c:
+        st = c.streams.video[0]
+        assert (st.width, st.height) == (640, 480) and st.frames == 180  # 6 s at 30 fps, descend acts at 5 Hz

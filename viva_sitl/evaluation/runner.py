@@ -107,15 +107,15 @@ def run_inprocess_trial(
     log = monitor.log
     try:
         while log.end is None:
+            t = vehicle.time_s
+            if want_frames and t + 1e-9 >= next_frame_s:  # the camera runs at its own rate, not the pilot's
+                next_frame_s += frame_period_s
+                frame = vehicle.render(wall_time_s=0.0)
+                if video:
+                    writer = _write_video(
+                        writer, trial_dir / "vac.mp4", frame.image_bgr, 1.0 / frame_period_s
+                    )
             if step % steps_per_act == 0:
-                t = vehicle.time_s
-                if want_frames and t + 1e-9 >= next_frame_s:
-                    next_frame_s += frame_period_s
-                    frame = vehicle.render(wall_time_s=0.0)
-                    if video:
-                        writer = _write_video(
-                            writer, trial_dir / "vac.mp4", frame.image_bgr, 1.0 / frame_period_s
-                        )
                 events, monitor.new_events = monitor.new_events, []
                 obs = Observation(
                     t_s=t, state=vehicle.state, armed=ap.armed, mode=ap.mode, landed_state=ap.landed_state,
