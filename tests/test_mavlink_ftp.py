@@ -9,11 +9,11 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
+from mav_client import MavClient, VehicleThread
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import common as M
 
 from viva_sitl.mavlink import MavlinkConfig
-from viva_sitl.mavlink.selftest import MavClient, VehicleThread
 
 mavftp = pytest.importorskip("pymavlink.mavftp", reason="pymavlink without mavftp (needs >= 2.4.41)")
 
