@@ -86,7 +86,7 @@ def test_the_set_is_a_multicopter_px4_sitl_set() -> None:
 def _read_param_names(package: Path) -> set[str]:
     """Every PX4-style name the autopilot package reads (string literals), from its source."""
     names: set[str] = set()
-    for path in package.rglob("*.py"):
+    for path in package.rglob("*.py"):  # the package and its subpackages (autopilot/tasks)
         if path.name != "params.py":
             names |= set(re.findall(r'"([A-Z][A-Z0-9]*_[A-Z0-9_]+)"', path.read_text(encoding="utf-8")))
     return names

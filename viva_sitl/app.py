@@ -30,6 +30,9 @@ from viva_sitl.dashboard.layers import world_layers
 from viva_sitl.dashboard.overview import LayerProvider
 from viva_sitl.dashboard.server import Dashboard
 from viva_sitl.dynamics import EavState
+from viva_sitl.evaluation.monitor import Limits
+from viva_sitl.evaluation.session import ScenarioSession, read_scenario_file, scenario_config
+from viva_sitl.evaluation.spec import Scenario
 from viva_sitl.footage import open_footage
 from viva_sitl.footage.loader import resolve_metadata
 from viva_sitl.frame import RenderedFrame
@@ -72,6 +75,7 @@ class SitlApp:
         video: bool = True,
         run_dir: Path | None = None,
         dashboard: DashboardConfig | None = None,
+        scenario: tuple[Scenario, Limits] | None = None,
     ) -> None:
         self.config = config
         self.vehicle = Vehicle(config)
@@ -111,6 +115,11 @@ class SitlApp:
         # the trajectory of every run (recording.py), for `viva-sitl replay` and analysis
         self.trajectory = TrajectoryRecorder(self.run_dir / TRAJECTORY_FILE)
         self._trajectory_task: asyncio.Task[None] | None = None
+        # --- a landing trial (`run --scenario FILE`): viva_sitl.evaluation.session ---------------------
+        self.trial: ScenarioSession | None = None
+        if scenario is not None:
+            self.trial = ScenarioSession(scenario[0], scenario[1], self.vehicle, self.run_dir)
+            self.endpoint.add_event_listener(self.trial.on_statustext)
         self._stopping = asyncio.Event()
         self._physics_task: asyncio.Task[None] | None = None
 
@@ -187,6 +196,8 @@ class SitlApp:
         self.endpoint.on_sim_step()  # telemetry, heartbeats and MAVLink timers run on sim time
         if self.trajectory.due(self.sim.state.time_s):
             self._sample_trajectory()
+        if self.trial is not None and self.trial.after_step():
+            self.stop()  # the trial is over (landed, crash, left the footage, timeout)
 
     def _sample_trajectory(self) -> None:
         s = self.sim.state
@@ -260,6 +271,8 @@ class SitlApp:
                 self.scheduler.stop()
             if self.video is not None:
                 self.video.stop()
+            if self.trial is not None:
+                self.trial.finish()
             self.sim.close()
             self._print_stats()
 
@@ -362,7 +375,10 @@ def config_from_args(args: argparse.Namespace) -> SimConfig:
     video = dataclasses.replace(video, **{k: v for k, v in video_updates.items() if v is not None})
     if args.mjpeg_port is not None:
         video = dataclasses.replace(video, mjpeg_rtp=True)
-    return dataclasses.replace(cfg, mavlink=mav, video=video, **sim_updates)  # type: ignore[arg-type]
+    cfg = dataclasses.replace(cfg, mavlink=mav, video=video, **sim_updates)  # type: ignore[arg-type]
+    if getattr(args, "scenario", None):  # a trial's start (pose, footage, parameters) over the config
+        cfg = scenario_config(cfg, read_scenario_file(args.scenario)[0])
+    return cfg
 
 
 def dashboard_config_from_args(args: argparse.Namespace, instance: int) -> DashboardConfig:
@@ -381,11 +397,13 @@ def run_from_args(args: argparse.Namespace) -> int:
     except ValueError as exc:  # a command-line value a config section refuses (e.g. --instance 500)
         print(f"viva-sitl: {exc}", file=sys.stderr)
         return 2
+    scenario = read_scenario_file(args.scenario) if getattr(args, "scenario", None) else None
     app = SitlApp(
         cfg,
         video=not args.no_video,
         run_dir=Path(args.run_dir) if args.run_dir else None,
         dashboard=dashboard_config_from_args(args, cfg.mavlink.instance),
+        scenario=scenario,
     )
 
     async def main() -> None:

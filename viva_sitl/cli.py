@@ -174,6 +174,11 @@ def build_parser() -> argparse.ArgumentParser:
     replay.add_argument(
         "--duration", type=positive_float, help="stop serving after this many wall-clock seconds"
     )
+    run.add_argument(
+        "--scenario",
+        help="a landing trial's scenario file (written by `viva-sitl trials run`): start pose, footage and its "
+        "start time, parameters, event schedule; the run ends when the trial does and writes its logs to --run-dir",
+    )
 
     render = sub.add_parser("render", help="render one VAC frame at a pose")
     render.add_argument("--footage", help="catalog name or path (default: synthetic)")
@@ -193,6 +198,8 @@ def build_parser() -> argparse.ArgumentParser:
         add_help=False,
     )
     footage.add_argument("rest", nargs=argparse.REMAINDER)
+    trials = sub.add_parser("trials", help="landing trials: run | compare | show | scenarios", add_help=False)
+    trials.add_argument("rest", nargs=argparse.REMAINDER)
     return parser
 
 
@@ -235,6 +242,10 @@ def main(argv: list[str] | None = None) -> int:
         from viva_sitl.footage import footage_main
 
         return footage_main(argv[1:])
+    if argv[:1] == ["trials"]:  # landing trials have their own parser (viva_sitl/evaluation/cli.py)
+        from viva_sitl.evaluation.cli import trials_main
+
+        return trials_main(argv[1:])
     parser = build_parser()
     args = parser.parse_args(argv)
     logging.basicConfig(level=args.log_level, format="%(asctime)s %(levelname)s %(name)s: %(message)s")

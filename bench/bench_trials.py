@@ -1,0 +1,188 @@
+"""Landing trials per hour: viva-sitl's in-process trials (local pool) vs the same loop written with viva-safeland's
+DroneEnv (the reference), measured in the same run, over the 4K bench clip, 640x480 VAC at 30 fps.
+
+    /work/venv/bin/python bench/bench_trials.py                          # defaults: 4 trials per side, jobs = cores
+    /work/venv/bin/python bench/bench_trials.py --trials 6 --jobs 2 --ref-python /work/refvenv/bin/python
+
+One trial = a 60 s (sim) emergency landing: air start at 30 m over the clip, "land now" at 1 s.
+  ours: `run_campaign(spec, "bench.bench_trials:VisionDescend", jobs=J)`: the Vehicle (250 Hz EAV + autopilot) with
+        an in-process pilot that asks for every VAC frame (640x480 at 30 fps) and reads it (mean brightness), and
+        lands through the autopilot; trajectory/events written and scored as in any campaign.
+  ref:  DroneEnv(render_mode="rgb_array", render_fps=30) with its drone view set to 640x480, reset at z = 30 m,
+        then env.step() with a proportional descent policy (reads the observation the same way) until it
+        terminates (z <= 2 m) or 60 s (1800 steps) pass: J such loops in J processes at once.
+Both are normalised to 60 s of simulated flight per trial (a reference loop that terminates early counts the
+seconds it flew). Memory: peak RSS (VmHWM: ru_maxrss would carry the parent's peak across fork + exec) of one
+process running one trial (ours: a fresh process that imports, opens the footage and flies; ref: its process). Prints a JSON report; bench/results_trials.md records a run.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+REPO = Path(__file__).resolve().parents[1]
+if str(REPO) not in sys.path:  # the pilot class below is imported by name in the pool's workers
+    sys.path.insert(0, str(REPO))
+
+import numpy as np  # noqa: E402
+
+from viva_sitl.dynamics import EavCommand  # noqa: E402
+
+TRIAL_S = 60.0
+
+REF_LOOP = r"""
+import contextlib, io, json, sys, time
+import numpy as np
+with contextlib.redirect_stdout(io.StringIO()):
+    from viva import DroneEnv
+video, trials, trial_s, seed = sys.argv[1], int(sys.argv[2]), float(sys.argv[3]), int(sys.argv[4])
+with contextlib.redirect_stdout(sys.stderr):
+    env = DroneEnv(render_mode="rgb_array", video=video, render_fps=30, terminated_step=10**9, fixed=False)
+env.drone_view_size = np.array((640, 480))
+env.simulator.camera.output = np.array((640, 480), dtype=np.int32)
+rng = np.random.default_rng(seed)
+t0 = time.perf_counter()
+flown = 0.0
+brightness = 0.0
+for k in range(trials):
+    with contextlib.redirect_stdout(sys.stderr):
+        obs, _ = env.reset(x=0.0, y=0.0, z=30.0, psi_deg_init=float(rng.uniform(0, 360)))
+    vz = 0.0
+    for step in range(int(trial_s * 30)):
+        brightness += float(obs.mean())
+        thrust = float(np.clip(0.3 * (-0.5 - vz), -0.5, 0.5))  # descend at 0.5 m/s (z up in viva)
+        obs, term, info = env.step(np.array([0.0, 0.0, 0.0, thrust]))
+        vz = float(info["drone_state"].vel.z)
+        if term:
+            break
+    flown += (step + 1) / 30.0
+wall = time.perf_counter() - t0
+hwm = next(int(x.split()[1]) for x in open("/proc/self/status") if x.startswith("VmHWM:"))
+print(json.dumps({"trials": trials, "wall_s": wall, "sim_s": flown, "max_rss_mb": hwm / 1024}))
+"""
+
+
+class VisionDescend:
+    """The bench's in-process pilot: every VAC frame at 30 fps is read (as a vision policy would), then Land."""
+
+    name, control_hz, frame_hz, uses_ground_truth = "vision-descend", 30.0, 30.0, False
+
+    def reset(self, scenario: Any, truth: Any) -> None:
+        self.brightness = 0.0
+        self.landing = False
+
+    def act(self, obs: Any, ctl: Any) -> EavCommand | None:
+        if obs.frame is not None:
+            self.brightness += float(obs.frame.image_bgr.mean())
+        if obs.land_now and not self.landing:
+            self.landing = ctl.land().ok
+        return None
+
+
+def bench_spec(clip: Path, n: int) -> Any:
+    from viva_sitl.evaluation.spec import spec_from_dict
+
+    return spec_from_dict(
+        {
+            "trials": {"name": "bench", "n": n, "seed": 0, "timeout_s": TRIAL_S, "end_outside_s": 1000.0},
+            "scenario": {"footage": str(clip), "start": "air", "north_m": [-50.0, 50.0], "east_m": [-50.0, 50.0],
+                         "altitude_m": 30.0, "land_at_s": 1.0, "params": {"MPC_LAND_SPEED": 0.6}},
+        },
+        "bench",
+    )  # fmt: skip
+
+
+def ours(clip: Path, n: int, jobs: int) -> dict[str, Any]:
+    from viva_sitl.evaluation.campaign import run_campaign
+
+    spec = bench_spec(clip, n)
+    with tempfile.TemporaryDirectory() as d:
+        t0 = time.perf_counter()
+        camp = run_campaign(spec, "bench.bench_trials:VisionDescend", Path(d), jobs=jobs, progress=False)
+        wall = time.perf_counter() - t0
+    rows = camp.ordered_rows()
+    sim = sum(float(r["end_t_s"] or 0.0) for r in rows)
+    return {"trials": n, "wall_s": wall, "sim_s": sim, "ends": [r["end"] for r in rows],
+            "trial_wall_s": [r["wall_s"] for r in rows]}  # fmt: skip
+
+
+def ours_memory(clip: Path) -> float:
+    code = "\n".join([
+        f"import sys; sys.path.insert(0, {str(REPO)!r})",
+        "from pathlib import Path", "import tempfile",
+        "from bench.bench_trials import bench_spec",
+        "from viva_sitl.evaluation.spec import draw_scenarios",
+        "from viva_sitl.evaluation.runner import run_inprocess_trial",
+        f"spec = bench_spec(Path({str(clip)!r}), 1)",
+        "with tempfile.TemporaryDirectory() as d:",
+        "    run_inprocess_trial(spec, draw_scenarios(spec)[0], 'bench.bench_trials:VisionDescend', Path(d))",
+        "print(next(int(x.split()[1]) for x in open('/proc/self/status') if x.startswith('VmHWM:')) / 1024)",
+    ])  # fmt: skip
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=REPO)
+    return float(out.stdout.strip().splitlines()[-1])
+
+
+def ref(ref_python: str, clip: Path, n: int, jobs: int) -> dict[str, Any]:
+    per = [n // jobs + (1 if k < n % jobs else 0) for k in range(jobs)]
+    t0 = time.perf_counter()
+    procs = [subprocess.Popen([ref_python, "-c", REF_LOOP, str(clip), str(m), str(TRIAL_S), str(k)],
+                              stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+             for k, m in enumerate(per) if m > 0]  # fmt: skip
+    outs = [json.loads(p.communicate()[0].strip().splitlines()[-1]) for p in procs]
+    wall = time.perf_counter() - t0
+    return {"trials": n, "wall_s": wall, "sim_s": sum(o["sim_s"] for o in outs),
+            "max_rss_mb": max(o["max_rss_mb"] for o in outs)}  # fmt: skip
+
+
+def per_hour(r: dict[str, Any]) -> tuple[float, float]:
+    """(trials per hour as run, 60 s trials per hour: normalised to 60 s of flight each)."""
+    return 3600.0 * r["trials"] / r["wall_s"], 3600.0 * (r["sim_s"] / TRIAL_S) / r["wall_s"]
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--trials", type=int, default=4, help="trials per side per round")
+    ap.add_argument("--jobs", type=int, default=os.cpu_count() or 1)
+    ap.add_argument("--rounds", type=int, default=1, help="rounds, interleaved ref ours ref ours ...")
+    ap.add_argument("--ref-python", default="/work/refvenv/bin/python")
+    ap.add_argument(
+        "--frames", type=int, default=60, help="frames of the 4K bench clip (bench_core.make_clip)"
+    )
+    args = ap.parse_args()
+    from bench.bench_core import DEFAULT_CACHE, make_clip
+
+    clip = make_clip(DEFAULT_CACHE, args.frames)
+    res: dict[str, Any] = {
+        "machine": f"{platform.node()} {platform.machine()} {os.cpu_count()} cpus, {platform.python_version()}",
+        "load_avg_before": os.getloadavg(), "clip": str(clip), "jobs": args.jobs, "rounds": [],
+    }  # fmt: skip
+    for _ in range(args.rounds):
+        r_ref = ref(args.ref_python, clip, args.trials, args.jobs)
+        r_ours = ours(clip, args.trials, args.jobs)
+        res["rounds"].append({"ref": r_ref, "ours": r_ours})
+    res["load_avg_after"] = os.getloadavg()
+    ours_h = [per_hour(r["ours"]) for r in res["rounds"]]
+    ref_h = [per_hour(r["ref"]) for r in res["rounds"]]
+    med = lambda xs: float(np.median(xs))  # noqa: E731
+    res["ours_trials_per_hour"] = med([h[0] for h in ours_h])
+    res["ours_60s_trials_per_hour"] = med([h[1] for h in ours_h])
+    res["ref_trials_per_hour"] = med([h[0] for h in ref_h])
+    res["ref_60s_trials_per_hour"] = med([h[1] for h in ref_h])
+    res["ratio_60s"] = res["ours_60s_trials_per_hour"] / res["ref_60s_trials_per_hour"]
+    res["ours_rss_mb_per_trial_process"] = ours_memory(clip)
+    res["ref_rss_mb_per_process"] = max(r["ref"]["max_rss_mb"] for r in res["rounds"])
+    print(json.dumps(res, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

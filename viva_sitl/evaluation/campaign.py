@@ -1,0 +1,360 @@
+"""A campaign: N trials of one pilot over the scenarios drawn from (spec, seed), in parallel, resumable.
+
+    results = run_campaign(spec, pilot="descend", out_dir=Path("out"), jobs=4)          # Python API
+    viva-sitl trials run SPEC.toml --pilot descend --n 20 --jobs 4 -o out                 # the same from the CLI
+
+Backends: "local" (default): `jobs` worker processes, each fed one trial at a time over its own pipe, so the
+parent always knows which trial a worker runs; a worker past the trial's wall limit is stopped (SIGTERM: it ends the
+processes its trial started; then SIGKILL) and that trial fails with end = wall_timeout, the others go on.
+"ray": one Ray task per trial (`ray.init(address)`; a task past the wall limit is cancelled).
+
+Each finished trial is written at once to OUT/trials/NNNN/result.json (next to its logs); Ctrl-C keeps them and
+`--resume` runs only the trials whose result is missing (or was drawn from a different scenario). Results do not
+depend on the backend or the job count: every trial is a pure function of (spec, scenario, pilot).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import multiprocessing as mp
+import os
+import signal
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from multiprocessing.connection import Connection
+from pathlib import Path
+from queue import Empty
+from typing import Any
+
+from viva_sitl.evaluation.pilots import is_inprocess, make_pilot
+from viva_sitl.evaluation.scoring import COLUMNS, SCHEMA, score_trial
+from viva_sitl.evaluation.spec import Scenario, TrialSpec, draw_scenarios
+
+Row = dict[str, Any]
+
+
+@dataclass
+class Campaign:
+    spec: TrialSpec
+    pilot: str
+    scenarios: list[Scenario]
+    out_dir: Path
+    rows: dict[int, Row] = field(default_factory=dict)
+    interrupted: bool = False
+    backend: str = "local"
+    jobs: int = 1
+
+    @property
+    def complete(self) -> bool:
+        return len(self.rows) == len(self.scenarios)
+
+    def ordered_rows(self) -> list[Row]:
+        return [self.rows[s.index] for s in self.scenarios if s.index in self.rows]
+
+
+def trial_dir(out_dir: Path, index: int) -> Path:
+    return out_dir / "trials" / f"{index:04d}"
+
+
+def default_wall_limit_s(spec: TrialSpec, pilot: str) -> float:
+    """Wall seconds one trial may take before it is stopped: generous (loaded machines), finite (hung pilots)."""
+    if is_inprocess(pilot):
+        return 120.0 + 4.0 * spec.timeout_s
+    return 90.0 + 3.0 * spec.timeout_s / spec.speed
+
+
+def run_one(spec: TrialSpec, scenario: Scenario, pilot: str, out_dir: Path, slot: int, video: bool) -> Row:
+    """One trial in this process (any backend calls this): in-process or external by the pilot's form."""
+    tdir = trial_dir(out_dir, scenario.index)
+    tdir.mkdir(parents=True, exist_ok=True)
+    scenario.write(tdir / "scenario.json")
+    try:
+        if is_inprocess(pilot):
+            from viva_sitl.evaluation.runner import run_inprocess_trial
+
+            row = run_inprocess_trial(spec, scenario, pilot, tdir, video=video,
+                                      wall_limit_s=default_wall_limit_s(spec, pilot) * 0.9)  # fmt: skip
+        else:
+            from viva_sitl.evaluation.external import run_external_trial
+
+            row = run_external_trial(spec, scenario, pilot, tdir, slot=slot, video=video, frames=spec.frames,
+                                     wall_limit_s=default_wall_limit_s(spec, pilot) * 0.9)  # fmt: skip
+    except Exception as exc:  # noqa: BLE001 - one trial's failure never takes the campaign down
+        row = failed_row(spec, scenario, "trial_error", f"{type(exc).__name__}: {exc}")
+    row["pilot"] = pilot
+    return row
+
+
+def failed_row(spec: TrialSpec, scenario: Scenario, end: str, detail: str) -> Row:
+    """The row of a trial that produced no flight log (its worker died or hung)."""
+    from viva_sitl.evaluation.monitor import TrialLog
+
+    log = TrialLog(end=end, end_detail=detail)
+    row = score_trial(scenario, log, None, spec)
+    return row
+
+
+# ----------------------------------------------------------------------------------------- local pool
+
+
+def _worker(slot: int, conn: Connection, results: Any, spec: TrialSpec, pilot: str, out_dir: str, video: bool) -> None:  # fmt: skip
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent handles Ctrl-C and stops us with SIGTERM
+
+    def _term(*_: object) -> None:
+        raise SystemExit(143)  # unwinds: the trial's finally blocks end the processes it started
+
+    signal.signal(signal.SIGTERM, _term)
+    while True:
+        try:
+            task = conn.recv()
+        except EOFError:
+            return
+        if task is None:
+            return
+        scenario = task
+        row = run_one(spec, scenario, pilot, Path(out_dir), slot, video)
+        results.put((slot, scenario.index, row))
+
+
+@dataclass
+class _Slot:
+    proc: Any
+    conn: Connection
+    index: int | None = None
+    since: float = 0.0
+
+
+def _local(spec: TrialSpec, pilot: str, todo: list[Scenario], out_dir: Path, jobs: int, video: bool,
+           wall_limit_s: float) -> Iterator[tuple[int, Row]]:  # fmt: skip
+    ctx = mp.get_context("spawn")
+    results = ctx.Queue()
+    queue = list(todo)
+    by_index = {s.index: s for s in todo}
+    slots: dict[int, _Slot] = {}
+
+    def start(slot: int) -> _Slot:
+        parent, child = ctx.Pipe()
+        p = ctx.Process(target=_worker, args=(slot, child, results, spec, pilot, str(out_dir), video),
+                        name=f"viva-trial-{slot}", daemon=True)  # fmt: skip
+        p.start()
+        child.close()
+        return _Slot(p, parent)
+
+    def feed(slot: int) -> None:
+        s = slots[slot]
+        if queue:
+            sc = queue.pop(0)
+            s.index, s.since = sc.index, time.monotonic()
+            s.conn.send(sc)
+        else:
+            s.index = None
+
+    def stop(s: _Slot) -> None:
+        if s.proc.is_alive():
+            s.proc.terminate()
+            s.proc.join(10.0)
+        if s.proc.is_alive():
+            s.proc.kill()
+            s.proc.join(5.0)
+        s.conn.close()
+
+    try:
+        for k in range(min(jobs, len(queue))):
+            slots[k] = start(k)
+            feed(k)
+        pending = len(todo)
+        while pending:
+            try:
+                slot, index, row = results.get(timeout=0.5)
+            except Empty:  # nothing finished: check the workers
+                now = time.monotonic()
+                for k, s in list(slots.items()):
+                    if s.index is None:
+                        continue
+                    dead = not s.proc.is_alive()
+                    if dead or now - s.since > wall_limit_s:
+                        idx = s.index
+                        why = (f"worker died (exit code {s.proc.exitcode})" if dead
+                               else f"trial took more than {wall_limit_s:g} s of wall time (pilot hung?)")  # fmt: skip
+                        stop(s)
+                        pending -= 1
+                        yield idx, {**failed_row(spec, by_index[idx], "wall_timeout" if not dead else "worker_died",
+                                                 why), "pilot": pilot}  # fmt: skip
+                        slots[k] = start(k)
+                        feed(k)
+                continue
+            s = slots[slot]
+            if s.index != index:
+                continue  # a late result from a worker already given up on
+            pending -= 1
+            yield index, row
+            feed(slot)
+    finally:
+        for s in slots.values():
+            with contextlib.suppress(Exception):
+                s.conn.send(None)
+        deadline = time.monotonic() + 2.0
+        for s in slots.values():
+            s.proc.join(max(0.0, deadline - time.monotonic()))
+            stop(s)
+
+
+# ----------------------------------------------------------------------------------------- ray
+
+
+def _ray(spec: TrialSpec, pilot: str, todo: list[Scenario], out_dir: Path, jobs: int, video: bool,
+         wall_limit_s: float, address: str | None) -> Iterator[tuple[int, Row]]:  # fmt: skip
+    try:
+        import ray
+    except ImportError:
+        raise RuntimeError("the ray backend needs Ray: pip install 'viva-sitl[trials-ray]'") from None
+    started = False
+    if not ray.is_initialized():
+        ray.init(address=address, include_dashboard=False, log_to_driver=False)
+        started = True
+    try:
+        task = ray.remote(num_cpus=1, max_retries=0)(run_one)
+        queue = list(todo)
+        running: dict[Any, tuple[int, float]] = {}
+        slot = 0
+        while queue or running:
+            while queue and len(running) < jobs:
+                sc = queue.pop(0)
+                ref = task.remote(spec, sc, pilot, out_dir, slot % max(jobs, 1), video)
+                slot += 1
+                running[ref] = (sc.index, time.monotonic())
+            done, _ = ray.wait(list(running), num_returns=1, timeout=0.5)
+            for ref in done:
+                idx, _t = running.pop(ref)
+                try:
+                    row = ray.get(ref)
+                except Exception as exc:  # noqa: BLE001 - a task that failed in Ray itself
+                    row = {**failed_row(spec, _by(todo, idx), "worker_died", f"ray: {exc}"), "pilot": pilot}
+                yield idx, row
+            now = time.monotonic()
+            for ref, (idx, t0) in list(running.items()):
+                if now - t0 > wall_limit_s:
+                    ray.cancel(ref, force=True)
+                    running.pop(ref)
+                    yield idx, {**failed_row(spec, _by(todo, idx), "wall_timeout",
+                                             f"trial took more than {wall_limit_s:g} s of wall time"), "pilot": pilot}  # fmt: skip
+    finally:
+        if started:
+            ray.shutdown()
+
+
+def _by(todo: list[Scenario], idx: int) -> Scenario:
+    return next(s for s in todo if s.index == idx)
+
+
+# ----------------------------------------------------------------------------------------- campaign
+
+
+def load_finished(out_dir: Path, scenarios: list[Scenario], pilot: str) -> dict[int, Row]:
+    """Rows already on disk whose scenario and pilot match (for --resume)."""
+    out: dict[int, Row] = {}
+    for sc in scenarios:
+        d = trial_dir(out_dir, sc.index)
+        try:
+            res = json.loads((d / "result.json").read_text())
+        except (FileNotFoundError, json.JSONDecodeError):
+            continue
+        if res.get("scenario") == sc.to_dict() and res.get("row", {}).get("pilot") == pilot:
+            out[sc.index] = res["row"]
+    return out
+
+
+def _save_row(out_dir: Path, sc: Scenario, row: Row) -> None:
+    d = trial_dir(out_dir, sc.index)
+    d.mkdir(parents=True, exist_ok=True)
+    tmp = d / "result.json.tmp"
+    tmp.write_text(json.dumps({"schema": SCHEMA, "scenario": sc.to_dict(), "row": row}, indent=1))
+    os.replace(tmp, d / "result.json")  # atomic: an interrupted write never leaves half a result
+
+
+def run_campaign(
+    spec: TrialSpec,
+    pilot: str | None = None,
+    out_dir: Path | str = "trials-out",
+    *,
+    n: int | None = None,
+    seed: int | None = None,
+    jobs: int | None = None,
+    backend: str = "local",
+    address: str | None = None,
+    resume: bool = False,
+    only: list[int] | None = None,
+    video: bool = False,
+    progress: bool = True,
+    wall_limit_s: float | None = None,
+    on_row: Callable[[Row], None] | None = None,
+) -> Campaign:
+    """Run (or resume) a campaign and write results.json / results.csv / report.html to out_dir. Ctrl-C keeps the
+    finished trials (reports written for them) and re-raises KeyboardInterrupt after that."""
+    from viva_sitl.evaluation.report import write_reports
+
+    pilot = pilot or spec.pilot
+    if is_inprocess(pilot):
+        make_pilot(pilot)  # a pilot that cannot be made fails here with one line, not once per trial
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    scenarios = draw_scenarios(spec, n, seed)
+    if only is not None:
+        if (out / "results.json").exists() and not resume:
+            raise ValueError(f"{out} holds a run already: give --trial its own output directory (-o)")
+        bad = [k for k in only if not 0 <= k < len(scenarios)]
+        if bad:
+            raise ValueError(f"--trial {bad[0]}: no such trial (0..{len(scenarios) - 1})")
+        scenarios = [scenarios[k] for k in only]
+    jobs = max(1, jobs or os.cpu_count() or 1)
+    camp = Campaign(spec, pilot, scenarios, out, backend=backend, jobs=jobs)
+    if resume:
+        camp.rows = load_finished(out, scenarios, pilot)
+    todo = [s for s in scenarios if s.index not in camp.rows]
+    limit = wall_limit_s if wall_limit_s is not None else default_wall_limit_s(spec, pilot)
+    by_index = {s.index: s for s in scenarios}
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=len(scenarios), initial=len(camp.rows), unit="trial", desc=f"{spec.name} [{pilot}]",
+                   dynamic_ncols=True)  # fmt: skip
+    if backend == "local":
+        gen = _local(spec, pilot, todo, out, jobs, video, limit)
+    elif backend == "ray":
+        gen = _ray(spec, pilot, todo, out, jobs, video, limit, address)
+    else:
+        raise ValueError(f"unknown backend {backend!r} (local, ray)")
+    try:
+        for idx, row in gen:
+            camp.rows[idx] = row
+            _save_row(out, by_index[idx], row)
+            if on_row is not None:
+                on_row(row)
+            if bar is not None:
+                ok = sum(1 for r in camp.rows.values() if r.get("success"))
+                bar.set_postfix_str(f"success {ok}/{len(camp.rows)}", refresh=False)
+                bar.update(1)
+    except KeyboardInterrupt:
+        camp.interrupted = True
+    finally:
+        with contextlib.suppress(Exception):
+            gen.close()  # type: ignore[attr-defined]
+        if bar is not None:
+            bar.close()
+        write_reports(camp)
+    if camp.interrupted:
+        raise KeyboardInterrupt
+    return camp
+
+
+def rows_equal(a: list[Row], b: list[Row]) -> bool:
+    """Same results apart from wall time (what 'identical whatever the backend and job count' means)."""
+    strip = [{k: v for k, v in r.items() if k != "wall_s"} for r in a]
+    strip_b = [{k: v for k, v in r.items() if k != "wall_s"} for r in b]
+    return strip == strip_b
+
+
+__all__ = ["COLUMNS", "Campaign", "load_finished", "rows_equal", "run_campaign", "run_one", "trial_dir"]

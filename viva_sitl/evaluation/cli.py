@@ -1,0 +1,187 @@
+"""`viva-sitl trials run | compare | show | scenarios`."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+from pathlib import Path
+from typing import Any
+
+
+def _nonneg_int(text: str) -> int:
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+    if v < 0:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {text!r}")
+    return v
+
+
+def _pos_int(text: str) -> int:
+    v = _nonneg_int(text)
+    if v < 1:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {text!r}")
+    return v
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="viva-sitl trials", description="Randomized landing trials: run, compare, show."
+    )
+    sub = p.add_subparsers(dest="cmd", required=True)
+    r = sub.add_parser("run", help="run N trials of a pilot over the scenarios of a spec")
+    r.add_argument("spec", help="trial spec (TOML), e.g. configs/trials/synthetic_emergency.toml")
+    r.add_argument(
+        "--pilot",
+        help="descend | oracle | package.module:Class (in-process) | a command line (external program; "
+        "placeholders {mavsdk_url} {pymavlink_url} {scenario} {frame_socket} {python} ..., see "
+        "viva_sitl/evaluation/external.py); default: the spec's trials.pilot",
+    )
+    r.add_argument("--n", type=_pos_int, help="number of trials (default: the spec's trials.n)")
+    r.add_argument("--seed", type=_nonneg_int, help="scenario seed (default: the spec's trials.seed)")
+    r.add_argument("--jobs", type=_pos_int, help=f"parallel trials (default: cores = {os.cpu_count()})")
+    r.add_argument(
+        "-o", "--out", default=None, help="output directory (default: trials-out/<spec name>-<pilot>)"
+    )
+    r.add_argument("--backend", choices=["local", "ray"], default="local")
+    r.add_argument("--address", help="Ray cluster address (with --backend ray; default: a local Ray)")
+    r.add_argument("--resume", action="store_true", help="keep finished trials in OUT, run the rest")
+    r.add_argument(
+        "--trial", type=_nonneg_int, action="append", help="run only trial K (repeatable): reproduce it"
+    )
+    r.add_argument("--video", action="store_true", help="also record each trial's VAC video (vac.mp4)")
+    r.add_argument("--no-progress", action="store_true", help="no progress bar")
+    c = sub.add_parser("compare", help="paired statistics of two runs over the same scenarios")
+    c.add_argument("a", help="OUT_DIR of run A")
+    c.add_argument("b", help="OUT_DIR of run B")
+    c.add_argument("-o", "--out", help="write the comparison as JSON here")
+    s = sub.add_parser("show", help="summary of a run, or one trial")
+    s.add_argument("out", help="OUT_DIR of a run")
+    s.add_argument("--trial", type=_nonneg_int, help="show this trial's row, scenario and events")
+    sc = sub.add_parser("scenarios", help="list the scenarios a spec draws (no flight)")
+    sc.add_argument("spec")
+    sc.add_argument("--n", type=_pos_int)
+    sc.add_argument("--seed", type=_nonneg_int)
+    return p
+
+
+def _print_summary(doc: dict[str, Any]) -> None:
+    agg = doc["aggregate"]
+    print(f"{doc['spec']['name']} [{doc['pilot']}]: {doc['trials_done']}/{doc['trials_total']} trials"
+          f"{'' if doc['complete'] else ' (incomplete: --resume completes the rest)'}")  # fmt: skip
+    if agg["success_rate"] is not None:
+        lo, hi = agg["success_rate_ci95_wilson"]
+        print(f"  {agg['criterion']}: {agg['success']}/{agg['success_judged']} = {100 * agg['success_rate']:.1f} % "
+              f"(95 % CI {100 * lo:.1f}-{100 * hi:.1f} %)")  # fmt: skip
+    else:
+        print(f"  {agg['criterion']}: unavailable (no ground truth)")
+    print("  ends: " + ", ".join(f"{k} {v}" for k, v in agg["ends"].items()))
+    for key in ("touchdown_speed_m_s", "min_dist_person_m", "risk_level", "time_to_land_s"):
+        st = agg["scores"][key]
+        if st["n"]:
+            print(f"  {key}: mean {st['mean']} (95 % CI {st['mean_ci95'][0]}..{st['mean_ci95'][1]}), "
+                  f"median {st['median']}, n {st['n']}")  # fmt: skip
+        else:
+            print(f"  {key}: unavailable")
+
+
+def trials_main(argv: list[str]) -> int:
+    from viva_sitl.config import ConfigError
+
+    args = build_parser().parse_args(argv)
+    try:
+        if args.cmd == "run":
+            return _run(args)
+        if args.cmd == "compare":
+            return _compare(args)
+        if args.cmd == "show":
+            return _show(args)
+        if args.cmd == "scenarios":
+            from viva_sitl.evaluation.spec import draw_scenarios, load_spec
+
+            spec = load_spec(args.spec)
+            for s in draw_scenarios(spec, args.n, args.seed):
+                print(json.dumps(s.to_dict()))
+            return 0
+    except (ConfigError, ValueError, RuntimeError) as exc:
+        print(f"viva-sitl trials: {exc}", file=sys.stderr)
+        return 2
+    return 2
+
+
+def _run(args: argparse.Namespace) -> int:
+    from viva_sitl.evaluation.campaign import run_campaign
+    from viva_sitl.evaluation.spec import load_spec
+
+    spec = load_spec(args.spec)
+    pilot = args.pilot or spec.pilot
+    safe = "".join(ch if ch.isalnum() or ch in "-_" else "_" for ch in pilot.split("/")[-1])[:40]
+    name = f"{spec.name}-{safe}" + ("-trial-" + "-".join(map(str, args.trial)) if args.trial else "")
+    out = Path(args.out) if args.out else Path("trials-out") / name
+    try:
+        camp = run_campaign(
+            spec, pilot, out, n=args.n, seed=args.seed, jobs=args.jobs, backend=args.backend,
+            address=args.address, resume=args.resume, only=args.trial, video=args.video,
+            progress=not args.no_progress,
+        )  # fmt: skip
+    except KeyboardInterrupt:
+        from viva_sitl.evaluation.report import read_results
+
+        doc = read_results(out)
+        print(f"\ninterrupted: {doc['trials_done']} of {doc['trials_total']} trials kept in {out}; "
+              f"rerun with --resume to complete the rest", file=sys.stderr)  # fmt: skip
+        return 130
+    from viva_sitl.evaluation.report import read_results
+
+    _print_summary(read_results(out))
+    print(f"  report: {out / 'report.html'}  results: {out / 'results.csv'}, {out / 'results.json'}")
+    return 0 if camp.complete else 1
+
+
+def _compare(args: argparse.Namespace) -> int:
+    from viva_sitl.evaluation.report import compare_docs, read_results
+
+    a, b = read_results(args.a), read_results(args.b)
+    res = compare_docs(a, b)
+    if args.out:
+        Path(args.out).write_text(json.dumps(res, indent=1))
+    s = res["success"]
+    print(f"A = {res['a']['pilot']} ({args.a}), B = {res['b']['pilot']} ({args.b}): {res['pairs']} paired trials, "
+          f"same scenarios: {res['same_scenarios']}")  # fmt: skip
+    if not res["same_scenarios"]:
+        print(
+            "  WARNING: the runs were drawn from different scenarios: pairs match by trial index and seed only"
+        )
+    if s["judged_pairs"]:
+        print(f"  success A {100 * s['rate_a']:.1f} %  B {100 * s['rate_b']:.1f} %  (B - A {100 * s['diff_b_minus_a']:+.1f} "
+              f"points, 95 % CI {100 * s['diff_ci95'][0]:+.1f}..{100 * s['diff_ci95'][1]:+.1f}); both {s['both']}, "
+              f"only A {s['only_a']}, only B {s['only_b']}, neither {s['neither']}; McNemar p = {s['mcnemar_p']}")  # fmt: skip
+    else:
+        print("  success: unavailable (no ground truth)")
+    for key, d in res["scores"].items():
+        if d["pairs"]:
+            print(f"  {key:32s} A {d['mean_a']:>9} B {d['mean_b']:>9}  B-A {d['mean_diff_b_minus_a']:>9} "
+                  f"(95 % CI {d['diff_ci95'][0]}..{d['diff_ci95'][1]})")  # fmt: skip
+    return 0
+
+
+def _show(args: argparse.Namespace) -> int:
+    from viva_sitl.evaluation.report import read_results
+
+    doc = read_results(args.out)
+    if args.trial is None:
+        _print_summary(doc)
+        return 0
+    rows = {r["trial"]: r for r in doc["rows"]}
+    if args.trial not in rows:
+        raise ValueError(f"trial {args.trial} is not in {args.out} (done: {sorted(rows)[:20]}...)")
+    print(json.dumps(rows[args.trial], indent=1))
+    ev = Path(args.out) / "trials" / f"{args.trial:04d}" / "events.jsonl"
+    if ev.exists():
+        for line in ev.read_text().splitlines():
+            e = json.loads(line)
+            print(f"  t={e['t_s']:8.3f}  {e['kind']:10s} {e['text']}")
+    return 0

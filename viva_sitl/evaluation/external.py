@@ -1,0 +1,234 @@
+"""External pilots: the user's program (MAVSDK / pymavlink script, companion code) flown unchanged, per trial, against
+its own `viva-sitl run --scenario FILE --instance K --speed S` on ports nobody else uses.
+
+    viva-sitl trials run SPEC --pilot "{python} mission_scripts/mavsdk_takeoff_land.py {mavsdk_url} --altitude 10"
+
+The pilot command is split like a shell line (no shell runs it) and these placeholders are filled in; the same
+values are in its environment:
+
+    placeholder        environment               value
+    {mavsdk_url}       VIVA_SITL_MAVSDK_URL      udpin://127.0.0.1:P   (the API link: viva-sitl sends there)
+    {pymavlink_url}    VIVA_SITL_PYMAVLINK_URL   udpin:127.0.0.1:G     (the ground-station link)
+    {api_port}         VIVA_SITL_API_PORT        P
+    {gcs_port}         VIVA_SITL_GCS_PORT        G
+    {frame_socket}     VIVA_SITL_FRAME_SOCKET    tcp://127.0.0.1:F     (frame-and-pose socket; with trials.frames)
+    {scenario}         VIVA_SITL_SCENARIO        the scenario file (JSON, schema vivasitl.scenario.v1): start,
+                                                 land_at_s (the "land now" time), footage, failures, limits
+    {trial_dir}        VIVA_SITL_TRIAL_DIR       where this trial's logs go
+    {instance}         VIVA_SITL_INSTANCE        K (sysid K+1)
+    {speed}            VIVA_SITL_SPEED           the speed factor S
+    {grpc_port}        VIVA_SITL_GRPC_PORT       a free TCP port for a mavsdk_server (classic gRPC API)
+    {python}           -                         this Python interpreter
+
+"Land now" also reaches the pilot over MAVLink, as a STATUSTEXT (severity ALERT) "Emergency: land now".
+
+The vehicle process ends the trial itself (touchdown + disarm, crash, leaving the footage, timeout), writes the
+logs and prints `viva-sitl trial: {...}`; the pilot then gets PILOT_EXIT_GRACE_S to exit on its own (the vehicle
+still answers), then both are stopped. Every process runs in its own process group and is ended (SIGINT, SIGTERM, then
+SIGKILL of the group) on every exit path, including Ctrl-C and the trial's wall limit; on Linux they also get
+PR_SET_PDEATHSIG, so they die with the worker even if it is killed outright.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import ctypes
+import os
+import shlex
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+from typing import IO, Any
+
+from viva_sitl.evaluation.monitor import TrialLog
+from viva_sitl.evaluation.runner import limits_of, world_of
+from viva_sitl.evaluation.scoring import score_trial
+from viva_sitl.evaluation.session import TRIAL_PREFIX, write_scenario_file
+from viva_sitl.evaluation.spec import Scenario, TrialSpec
+
+READY_PREFIX = "viva-sitl ready"
+START_TIMEOUT_S = 60.0
+PILOT_EXIT_GRACE_S = 5.0  # wall seconds a pilot gets to exit on its own after its trial ended
+
+
+def _pdeathsig() -> None:  # runs in the child between fork and exec
+    with contextlib.suppress(Exception):
+        ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
+
+
+def free_ports(kind: int, count: int) -> list[int]:
+    socks = []
+    try:
+        for _ in range(count):
+            s = socket.socket(socket.AF_INET, kind)
+            s.bind(("127.0.0.1", 0))
+            socks.append(s)
+        return [int(s.getsockname()[1]) for s in socks]
+    finally:
+        for s in socks:
+            s.close()
+
+
+def _start(cmd: list[str], log: IO[str], env: dict[str, str] | None = None, cwd: str | None = None) -> subprocess.Popen[str]:  # fmt: skip
+    return subprocess.Popen(
+        cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env, cwd=cwd,
+        start_new_session=True, preexec_fn=_pdeathsig if sys.platform.startswith("linux") else None,
+    )  # fmt: skip
+
+
+def stop_group(p: subprocess.Popen[str], grace_s: float = 3.0) -> int | None:
+    """End a process and everything in its group: SIGINT, then SIGTERM, then SIGKILL."""
+    for sig, wait in ((signal.SIGINT, grace_s), (signal.SIGTERM, 2.0), (signal.SIGKILL, 2.0)):
+        if p.poll() is not None:
+            break
+        with contextlib.suppress(ProcessLookupError, PermissionError):
+            os.killpg(p.pid, sig)
+        with contextlib.suppress(subprocess.TimeoutExpired):
+            p.wait(wait)
+    with contextlib.suppress(ProcessLookupError, PermissionError):
+        os.killpg(p.pid, signal.SIGKILL)  # stragglers of the group (a mavsdk_server the script started)
+    return p.poll()
+
+
+class _Pump(threading.Thread):
+    """Copies a process's output to a log file and remembers the lines we wait for."""
+
+    def __init__(self, p: subprocess.Popen[str], log: IO[str], watch: tuple[str, ...]) -> None:
+        super().__init__(daemon=True)
+        self.p, self.log, self.watch = p, log, watch
+        self.hits: dict[str, str] = {}
+        self.tail: list[str] = []
+        self.event = threading.Event()
+
+    def run(self) -> None:
+        assert self.p.stdout is not None
+        for line in self.p.stdout:
+            self.log.write(line)
+            self.log.flush()
+            self.tail = (self.tail + [line.rstrip()])[-20:]
+            for w in self.watch:
+                if line.startswith(w):
+                    self.hits[w] = line
+                    self.event.set()
+        self.event.set()
+
+
+def pilot_command(template: str, values: dict[str, str]) -> list[str]:
+    try:
+        return [part.format(**values) for part in shlex.split(template)]
+    except (KeyError, IndexError) as exc:
+        raise ValueError(f"pilot command {template!r}: unknown placeholder {exc} (known: "
+                         f"{', '.join('{' + k + '}' for k in values)})") from None  # fmt: skip
+
+
+def run_external_trial(
+    spec: TrialSpec,
+    scenario: Scenario,
+    command: str,
+    trial_dir: Path,
+    *,
+    slot: int = 0,
+    video: bool = False,
+    wall_limit_s: float | None = None,
+    frames: bool = False,
+) -> dict[str, Any]:
+    wall0 = time.perf_counter()
+    trial_dir.mkdir(parents=True, exist_ok=True)
+    limits = limits_of(spec)
+    scen_path = trial_dir / "scenario.json"
+    write_scenario_file(scen_path, scenario, limits)
+    api, gcs, api_local, gcs_local, video_port = free_ports(socket.SOCK_DGRAM, 5)
+    frame_port, grpc_port = free_ports(socket.SOCK_STREAM, 2)
+    frame_url = f"tcp://127.0.0.1:{frame_port}"
+    instance = slot % 250
+    sitl_cmd = [
+        sys.executable, "-m", "viva_sitl", "--log-level", "WARNING", "run", "--scenario", str(scen_path),
+        "--instance", str(instance), "--speed", f"{spec.speed:g}", "--api-port", str(api), "--gcs-port", str(gcs),
+        "--api-local-port", str(api_local), "--gcs-local-port", str(gcs_local), "--video-port", str(video_port),
+        "--frame-socket", frame_url, "--run-dir", str(trial_dir),
+    ]  # fmt: skip
+    if video:
+        sitl_cmd += ["--record", str(trial_dir / "vac.mp4")]
+    elif not frames:
+        sitl_cmd.append("--no-video")
+    values = {
+        "mavsdk_url": f"udpin://127.0.0.1:{api}", "pymavlink_url": f"udpin:127.0.0.1:{gcs}", "api_port": str(api),
+        "gcs_port": str(gcs), "frame_socket": frame_url, "scenario": str(scen_path.resolve()),
+        "trial_dir": str(trial_dir.resolve()), "instance": str(instance), "speed": f"{spec.speed:g}",
+        "grpc_port": str(grpc_port), "python": sys.executable,
+    }  # fmt: skip
+    pcmd = pilot_command(command, values)
+    env = dict(os.environ)
+    env.update({f"VIVA_SITL_{k.upper()}": v for k, v in values.items() if k != "python"})
+    env["PYTHONUNBUFFERED"] = "1"
+    limit = wall_limit_s if wall_limit_s is not None else 90.0 + 3.0 * spec.timeout_s / spec.speed
+    sitl: subprocess.Popen[str] | None = None
+    pilot: subprocess.Popen[str] | None = None
+    end_override: tuple[str, str] | None = None
+    pilot_note = ""
+    with (trial_dir / "sitl.log").open("w") as slog, (trial_dir / "pilot.log").open("w") as plog:
+        try:
+            sitl = _start(sitl_cmd, slog)
+            spump = _Pump(sitl, slog, (READY_PREFIX, TRIAL_PREFIX))
+            spump.start()
+            t_start = time.monotonic()
+            while READY_PREFIX not in spump.hits:
+                if sitl.poll() is not None and not spump.is_alive():
+                    break
+                if time.monotonic() - t_start > START_TIMEOUT_S:
+                    break
+                spump.event.wait(0.2)
+                spump.event.clear()
+            if READY_PREFIX not in spump.hits:
+                tail = " | ".join(spump.tail[-3:])
+                end_override = ("sitl_error", f"viva-sitl run did not start: {tail}"[:400])
+            else:
+                try:
+                    pilot = _start(pcmd, plog, env=env)
+                except OSError as exc:
+                    end_override = ("pilot_error", f"cannot start the pilot {pcmd[0]!r}: {exc}")
+                if pilot is not None:
+                    ppump = _Pump(pilot, plog, ())
+                    ppump.start()
+                while end_override is None and sitl.poll() is None and TRIAL_PREFIX not in spump.hits:
+                    if time.perf_counter() - wall0 > limit:
+                        end_override = ("wall_timeout", f"trial took more than {limit:g} s of wall time")
+                        break
+                    if pilot is not None and pilot.poll() is not None and not pilot_note:
+                        rc = pilot.returncode
+                        last = next((x for x in reversed(ppump.tail) if x.strip()), "")
+                        pilot_note = f"pilot exited with code {rc}" + (f": {last}"[:200] if rc else "")
+                    time.sleep(0.1)
+        finally:
+            if pilot is not None:
+                if end_override is None:  # trial over: a script that waits for the disarm exits by itself
+                    with contextlib.suppress(subprocess.TimeoutExpired):
+                        pilot.wait(PILOT_EXIT_GRACE_S)
+                if not pilot_note:
+                    if pilot.poll() is None:
+                        pilot_note = (
+                            f"pilot still running at the end of the trial (stopped: {stop_group(pilot)})"
+                        )
+                    else:
+                        pilot_note = f"pilot exited with code {pilot.returncode}"
+                stop_group(pilot)  # and its process group (e.g. a mavsdk_server the script started)
+            if sitl is not None:
+                stop_group(sitl, grace_s=5.0)
+    try:
+        log = TrialLog.read(trial_dir)
+    except (FileNotFoundError, ValueError, KeyError) as exc:
+        log = TrialLog(end="sitl_error", end_detail=f"no trial log from viva-sitl run: {exc}")
+    if end_override is not None and (log.end in (None, "sitl_stopped") or end_override[0] == "sitl_error"):
+        log.end, log.end_detail = end_override
+    if pilot_note and log.end != "landed":
+        log.end_detail = f"{log.end_detail}; {pilot_note}"
+    if pilot_note:
+        log.events.append({"t_s": log.end_t_s, "kind": "pilot", "text": pilot_note, "severity": 6})
+    log.write(trial_dir)
+    row = score_trial(scenario, log, world_of(scenario.footage), spec)
+    row["wall_s"] = round(time.perf_counter() - wall0, 3)
+    return row

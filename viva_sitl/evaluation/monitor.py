@@ -1,0 +1,288 @@
+"""One trial's referee: applies the scenario's event schedule to a vehicle, samples its trajectory, decides the end.
+
+The same TrialMonitor serves the in-process runner (runner.py steps a Vehicle and calls `after_step`) and
+`viva-sitl run --scenario FILE` (app.py calls it after every physics step of the paced loop), so both forms of
+pilot are judged by one piece of code.
+
+A trial ends on: touchdown + disarm ("landed"), a touchdown faster than crash_speed_m_s ("crash"), the ground
+point outside the footage for longer than end_outside_s ("left_footage"), the timeout ("timeout"), or an error of
+the pilot (set by the runner).
+
+Event schedule (times in s after the start): "land now" at land_at_s (an event the pilot sees: in-process in the
+observation, over MAVLink as a STATUSTEXT "Emergency: land now"); failures: gcs_link_lost (the virtual ground station
+stops being heard: PX4's NAV_DLL_ACT link-loss failsafe after COM_DL_LOSS_T), battery_critical (the battery
+drops below BAT_CRIT_THR: PX4's "Critical battery level! Land now" warning).
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Protocol
+
+from viva_sitl.autopilot import Autopilot, ParamStore, Severity
+from viva_sitl.dynamics import EavState
+from viva_sitl.evaluation.spec import Scenario
+
+TRAJECTORY_COLUMNS = (
+    "t_s", "sim_time_s", "north_m", "east_m", "down_m", "vn_m_s", "ve_m_s", "vd_m_s", "roll_rad", "pitch_rad",
+    "yaw_rad", "thrust_n", "mode", "armed", "landed", "battery_remaining", "inside_footage",
+)  # fmt: skip
+LAND_NOW_TEXT = "Emergency: land now"
+GCS_HEARTBEAT_PERIOD_S = 1.0
+
+
+class MonitoredVehicle(Protocol):
+    """What the monitor reads: viva_sitl.vehicle.Vehicle satisfies it."""
+
+    @property
+    def state(self) -> EavState: ...
+
+    autopilot: Autopilot
+    params: ParamStore
+
+    def inside_footage(self, north_m: float, east_m: float) -> bool: ...
+
+
+@dataclass(frozen=True)
+class Limits:
+    timeout_s: float = 60.0
+    end_outside_s: float = 2.0
+    crash_speed_m_s: float = 3.0
+    log_hz: float = 25.0
+
+
+@dataclass
+class Touchdown:
+    t_s: float
+    north_m: float
+    east_m: float
+    vertical_speed_m_s: float  # down positive, the step before contact
+    horizontal_speed_m_s: float
+
+
+@dataclass
+class TrialLog:
+    """What a trial leaves: trajectory rows, events, the end and its reason."""
+
+    rows: list[tuple[Any, ...]] = field(default_factory=list)
+    events: list[dict[str, Any]] = field(default_factory=list)
+    touchdown: Touchdown | None = None
+    end: str | None = None  # landed | crash | left_footage | timeout | pilot_error | ...
+    end_detail: str = ""
+    end_t_s: float = 0.0
+    energy_wh: float = 0.0
+    outside_s: float = 0.0
+    path_m: float = 0.0
+    land_now_t_s: float | None = None
+
+    def write(self, trial_dir: Path) -> None:
+        trial_dir.mkdir(parents=True, exist_ok=True)
+        with (trial_dir / "trajectory.csv").open("w", newline="") as f:
+            w = csv.writer(f)
+            w.writerow(TRAJECTORY_COLUMNS)
+            w.writerows(self.rows)
+        with (trial_dir / "events.jsonl").open("w") as f:
+            for e in self.events:
+                f.write(json.dumps(e) + "\n")
+        (trial_dir / "end.json").write_text(json.dumps(self.summary(), indent=1))
+
+    def summary(self) -> dict[str, Any]:
+        td = self.touchdown
+        return {
+            "end": self.end, "end_detail": self.end_detail, "end_t_s": round(self.end_t_s, 6),
+            "touchdown": None if td is None else {k: round(v, 6) for k, v in td.__dict__.items()},
+            "energy_wh": round(self.energy_wh, 6), "outside_s": round(self.outside_s, 6),
+            "path_m": round(self.path_m, 6), "land_now_t_s": self.land_now_t_s,
+        }  # fmt: skip
+
+    @classmethod
+    def read(cls, trial_dir: Path) -> TrialLog:
+        """Reload what `write` left (used for external pilots, whose vehicle runs in `viva-sitl run`)."""
+        log = cls()
+        with (trial_dir / "trajectory.csv").open(newline="") as f:
+            r = csv.reader(f)
+            next(r)
+            for row in r:
+                log.rows.append(
+                    tuple(float(x) if k not in (12,) else x for k, x in enumerate(row))  # mode stays a string
+                )
+        with (trial_dir / "events.jsonl").open() as f:
+            log.events = [json.loads(line) for line in f if line.strip()]
+        s = json.loads((trial_dir / "end.json").read_text())
+        log.end, log.end_detail, log.end_t_s = s["end"], s["end_detail"], s["end_t_s"]
+        log.touchdown = None if s["touchdown"] is None else Touchdown(**s["touchdown"])
+        log.energy_wh, log.outside_s, log.path_m = s["energy_wh"], s["outside_s"], s["path_m"]
+        log.land_now_t_s = s["land_now_t_s"]
+        return log
+
+
+class TrialMonitor:
+    """Call `start(vehicle)` once, then `after_step(vehicle)` after every physics step; `log.end` is set when the
+    trial is over. `gcs=True`: act as the ground station whose link a gcs_link_lost failure cuts (in-process only;
+    over MAVLink the pilot is the ground station)."""
+
+    def __init__(self, scenario: Scenario, limits: Limits, *, gcs: bool = True) -> None:
+        self.scenario = scenario
+        self.limits = limits
+        self.log = TrialLog()
+        self.gcs = gcs
+        self.t0_s = (
+            0.0  # sim time at the start (Vehicle.reset starts at 0; the footage clock is shifted instead)
+        )
+        self._log_period_s = 1.0 / limits.log_hz
+        self._next_log_s = 0.0
+        self._next_hb_s = 0.0
+        self._pending = sorted(
+            [(scenario.land_at_s, "land_now")] + [(f.at_s, f.kind) for f in scenario.failures]
+        )
+        self._prev: EavState | None = None
+        self._mode = ""
+        self._armed = False
+        self._flown = False
+        self._outside_since: float | None = None
+        self._inside = True
+        self.land_now = False
+        self._volts = 0.0  # battery voltage, refreshed at the log rate (energy = sum of V I dt)
+        self.new_events: list[dict[str, Any]] = []  # since the pilot last looked (in-process observation)
+
+    def t_of(self, state: EavState) -> float:
+        return float(state.time_s) - self.t0_s
+
+    def event(self, t_s: float, kind: str, text: str, severity: int = int(Severity.INFO)) -> None:
+        e = {"t_s": round(t_s, 6), "kind": kind, "text": text, "severity": severity}
+        self.log.events.append(e)
+        self.new_events.append(e)
+
+    def start(self, v: MonitoredVehicle) -> None:
+        s = v.state
+        self._prev = s
+        self._flown = not s.landed
+        self._armed = v.autopilot.armed
+        self._mode = v.autopilot.mode.name
+        self.event(0.0, "start", f"{self.scenario.start} start at N{s.pos_ned_m[0]:.1f} E{s.pos_ned_m[1]:.1f} "
+                   f"alt {-s.pos_ned_m[2]:.1f} m, mode {self._mode}, armed {self._armed}")  # fmt: skip
+        self._sample(v, s, 0.0)
+
+    def record_autopilot_event(self, t_s: float, severity: int, text: str) -> None:
+        """An autopilot STATUSTEXT (its owner pops them: the runner, or the MAVLink endpoint's listener)."""
+        kind = "failsafe" if "ailsafe" in text else "autopilot"
+        self.event(t_s, kind, text, severity)
+
+    def _apply(self, v: MonitoredVehicle, t: float, kind: str) -> None:
+        if kind == "land_now":
+            self.land_now = True
+            self.log.land_now_t_s = round(t, 6)
+            self.event(t, "land_now", LAND_NOW_TEXT, int(Severity.ALERT))
+        elif kind == "gcs_link_lost":
+            cut_gcs_link(v.autopilot)
+            self.event(t, "failure", "injected: GCS link lost", int(Severity.CRITICAL))
+        elif kind == "battery_critical":
+            inject_battery_critical(v)
+            self.event(t, "failure", "injected: battery critical", int(Severity.CRITICAL))
+
+    def after_step(self, v: MonitoredVehicle) -> None:
+        s = v.state
+        prev = self._prev if self._prev is not None else s
+        self._prev = s
+        t = float(s.time_s) - self.t0_s
+        dt = s.dt_s
+        ap = v.autopilot
+        while self._pending and self._pending[0][0] <= t:
+            _, kind = self._pending.pop(0)
+            self._apply(v, t, kind)
+        if self.gcs and t >= self._next_hb_s:
+            ap.gcs_heartbeat(float(s.time_s))
+            self._next_hb_s = t + GCS_HEARTBEAT_PERIOD_S
+        # path and energy at the physics rate
+        d = s.pos_ned_m - prev.pos_ned_m
+        self.log.path_m += math.sqrt(float(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]))
+        if ap.armed:
+            self.log.energy_wh += ap.battery_current_a * self._volts * dt / 3600.0
+        mode, armed = ap.mode.name, ap.armed
+        if mode != self._mode:
+            self.event(t, "mode", f"mode {self._mode} -> {mode}")
+            self._mode = mode
+        if armed != self._armed:
+            self.event(t, "armed" if armed else "disarmed", "armed" if armed else "disarmed")
+            self._armed = armed
+        if not s.landed:
+            self._flown = True
+        if s.landed and not prev.landed:
+            vel = prev.vel_ned_m_s
+            td = Touchdown(t, float(s.pos_ned_m[0]), float(s.pos_ned_m[1]), float(vel[2]),
+                           math.hypot(float(vel[0]), float(vel[1])))  # fmt: skip
+            self.log.touchdown = td
+            self.event(t, "touchdown", f"touchdown at N{td.north_m:.2f} E{td.east_m:.2f}: vertical "
+                       f"{td.vertical_speed_m_s:.2f} m/s, horizontal {td.horizontal_speed_m_s:.2f} m/s")  # fmt: skip
+            if math.hypot(td.vertical_speed_m_s, td.horizontal_speed_m_s) > self.limits.crash_speed_m_s:
+                self._end(v, s, t, "crash", f"touchdown at {math.hypot(td.vertical_speed_m_s, td.horizontal_speed_m_s):.2f} m/s "
+                          f"> crash_speed_m_s {self.limits.crash_speed_m_s:g}")  # fmt: skip
+                return
+        elif not s.landed and prev.landed and self.log.touchdown is not None:
+            self.event(t, "liftoff", "lift-off")
+            self.log.touchdown = None  # a touch-and-go is not a landing
+        if t >= self._next_log_s:
+            self._next_log_s += self._log_period_s
+            self._inside = bool(v.inside_footage(float(s.pos_ned_m[0]), float(s.pos_ned_m[1])))
+            self._volts = ap.battery_voltage_v
+            self._sample(v, s, t)
+            if not self._inside:
+                if self._outside_since is None:
+                    self._outside_since = t
+                    self.event(t, "outside", "ground point left the footage")
+                elif t - self._outside_since >= self.limits.end_outside_s:
+                    self._end(
+                        v, s, t, "left_footage", f"outside the footage for {self.limits.end_outside_s:g} s"
+                    )
+                    return
+            elif self._outside_since is not None:
+                self._outside_since = None
+                self.event(t, "inside", "ground point back over the footage")
+        if not self._inside:
+            self.log.outside_s += dt
+        if self._flown and s.landed and not armed:
+            self._end(v, s, t, "landed", "touchdown and disarm")
+        elif t >= self.limits.timeout_s - 1e-9:
+            self._end(v, s, t, "timeout", f"not landed and disarmed after {self.limits.timeout_s:g} s")
+
+    def _sample(self, v: MonitoredVehicle, s: EavState, t: float) -> None:
+        p, vel, att = s.pos_ned_m, s.vel_ned_m_s, s.att_rpy_rad
+        ap = v.autopilot
+        if self._volts == 0.0:
+            self._volts = ap.battery_voltage_v
+        self.log.rows.append((
+            round(t, 4), round(float(s.time_s), 4), round(float(p[0]), 4), round(float(p[1]), 4),
+            round(float(p[2]), 4), round(float(vel[0]), 4), round(float(vel[1]), 4), round(float(vel[2]), 4),
+            round(float(att[0]), 5), round(float(att[1]), 5), round(float(att[2]), 5), round(float(s.thrust_n), 4),
+            ap.mode.name, int(ap.armed), int(bool(s.landed)), round(ap.battery_remaining, 5), int(self._inside),
+        ))  # fmt: skip
+
+    def end(self, v: MonitoredVehicle, end: str, detail: str) -> None:
+        """End the trial from outside (a pilot error, an interrupted run)."""
+        if self.log.end is None:
+            s = v.state
+            self._end(v, s, float(s.time_s) - self.t0_s, end, detail)
+
+    def _end(self, v: MonitoredVehicle, s: EavState, t: float, end: str, detail: str) -> None:
+        self._sample(v, s, t)
+        self.log.end, self.log.end_detail, self.log.end_t_s = end, detail, t
+        self.event(t, "end", f"{end}: {detail}")
+
+
+def inject_battery_critical(v: MonitoredVehicle) -> None:
+    """Drain the battery to just below BAT_CRIT_THR now (SIM_BAT_MIN_PCT 0 so it may go that low): PX4's
+    "Critical battery level! Land now" warning follows at the next control step."""
+    p, battery = v.params, v.autopilot.ctx.battery
+    target = max(0.0, p.get("BAT_CRIT_THR") - 0.01)
+    p.set("SIM_BAT_MIN_PCT", 0.0)
+    battery.used_mah = max(battery.used_mah, p.get("BAT1_CAPACITY") * (1.0 - target))
+
+
+def cut_gcs_link(autopilot: Autopilot) -> None:
+    """From now on this autopilot hears no ground-station heartbeat (the radio link is gone; an onboard API link
+    keeps working): PX4's data-link-loss failsafe (COM_DL_LOSS_T, NAV_DLL_ACT) follows as on a real vehicle."""
+    setattr(autopilot, "gcs_heartbeat", lambda now_s: None)  # noqa: B010 - instance override, this flight only

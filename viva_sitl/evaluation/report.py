@@ -1,0 +1,287 @@
+"""Reports of a campaign in OUT_DIR: results.json (schema vivasitl.trials.v1: spec, scenarios, rows, aggregates),
+results.csv (one row per trial, scoring.COLUMNS), report.html (self-contained: matplotlib figures as base64 PNG).
+
+    write_reports(campaign)               # after (or during an interrupted) run_campaign
+    rows = read_results(OUT_DIR)          # the rows back, for `trials compare` / `trials show`
+"""
+
+from __future__ import annotations
+
+import base64
+import csv
+import html
+import io
+import json
+import math
+import time
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from viva_sitl import __version__
+from viva_sitl.evaluation.scoring import COLUMNS, SCHEMA
+from viva_sitl.evaluation.stats import aggregate, paired
+
+if TYPE_CHECKING:
+    from viva_sitl.evaluation.campaign import Campaign
+
+Row = dict[str, Any]
+
+
+def write_reports(camp: Campaign) -> None:
+    out = camp.out_dir
+    rows = camp.ordered_rows()
+    agg = aggregate(rows, camp.spec.criterion.describe())
+    doc = {
+        "schema": SCHEMA,
+        "viva_sitl_version": __version__,
+        "created_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+        "pilot": camp.pilot,
+        "backend": camp.backend,
+        "jobs": camp.jobs,
+        "complete": camp.complete and not camp.interrupted,
+        "trials_total": len(camp.scenarios),
+        "trials_done": len(rows),
+        "spec": camp.spec.to_dict(),
+        "columns": list(COLUMNS),
+        "scenarios": [s.to_dict() for s in camp.scenarios],
+        "rows": rows,
+        "aggregate": agg,
+    }
+    tmp = out / "results.json.tmp"
+    tmp.write_text(json.dumps(doc, indent=1))
+    tmp.replace(out / "results.json")
+    with (out / "results.csv.tmp").open("w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=list(COLUMNS), extrasaction="ignore")
+        w.writeheader()
+        for r in rows:
+            w.writerow({k: ("" if r.get(k) is None else r.get(k)) for k in COLUMNS})
+    (out / "results.csv.tmp").replace(out / "results.csv")
+    (out / "report.html").write_text(render_html(doc, out))
+
+
+def read_results(out_dir: str | Path) -> dict[str, Any]:
+    p = Path(out_dir) / "results.json"
+    try:
+        doc: dict[str, Any] = json.loads(p.read_text())
+    except FileNotFoundError:
+        raise ValueError(f"{p}: no results (run `viva-sitl trials run` first)") from None
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"{p}: not valid JSON: {exc}") from None
+    if doc.get("schema") != SCHEMA:
+        raise ValueError(f"{p}: schema {doc.get('schema')!r}, expected {SCHEMA}")
+    return doc
+
+
+# ----------------------------------------------------------------------------------------------- figures
+
+
+def _png(fig: Any) -> str:
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=100, bbox_inches="tight")
+    import matplotlib.pyplot as plt
+
+    plt.close(fig)
+    return base64.b64encode(buf.getvalue()).decode("ascii")
+
+
+def _outcome_color(r: Row) -> str:
+    if r.get("success") is True:
+        return "#1a9850"
+    if r.get("success") is False:
+        return "#d73027"
+    return "#808080"
+
+
+def figure_touchdowns(doc: dict[str, Any], out_dir: Path, footage: str) -> str | None:
+    """Touchdown points (and start points) over the footage overview with the risk map, coloured by outcome."""
+    import cv2
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from viva_sitl.footage import open_footage
+    from viva_sitl.world import world_from_source
+    from viva_sitl.world.overlay import render_overview
+
+    rows = [r for r in doc["rows"] if r["footage"] == footage]
+    if not rows:
+        return None
+    with open_footage(footage) as src:
+        world = world_from_source(src)
+        t_ref = float(np.median([r["footage_time_s"] + (r["end_t_s"] or 0.0) for r in rows]))
+        img = render_overview(world, src, t_ref, max_size_px=1000, show_ids=False)
+        g = src.geometry
+    s = img.shape[1] / g.width_px
+    traj_xy: list[np.ndarray] = []
+    for r in rows:
+        p = out_dir / "trials" / f"{int(r['trial']):04d}" / "trajectory.csv"
+        try:
+            a = np.genfromtxt(p, delimiter=",", skip_header=1, usecols=(2, 3))
+        except (OSError, ValueError):
+            continue
+        a = np.atleast_2d(a)
+        if a.size:
+            px = np.array([g.ned_to_px(n, e) for n, e in a[:: max(1, len(a) // 200)]])
+            traj_xy.append((px + 0.5) * s - 0.5)
+    fig, ax = plt.subplots(figsize=(8, 8 * img.shape[0] / img.shape[1] + 0.6))
+    ax.imshow(cv2.cvtColor(img, cv2.COLOR_BGR2RGB))
+    for xy in traj_xy:
+        ax.plot(xy[:, 0], xy[:, 1], color="white", lw=0.6, alpha=0.6)
+    for r in rows:
+        u0, v0 = g.ned_to_px(r["start_north_m"], r["start_east_m"])
+        ax.plot((u0 + 0.5) * s - 0.5, (v0 + 0.5) * s - 0.5, marker="^", ms=4, color="white", alpha=0.8)
+        if r.get("touchdown_north_m") is None:
+            continue
+        u, v = g.ned_to_px(r["touchdown_north_m"], r["touchdown_east_m"])
+        ax.plot((u + 0.5) * s - 0.5, (v + 0.5) * s - 0.5, marker="o", ms=7, mec="black", mew=0.8,
+                color=_outcome_color(r))  # fmt: skip
+        ax.annotate(str(r["trial"]), ((u + 0.5) * s + 4, (v + 0.5) * s - 4), color="white", fontsize=7)
+    ax.set_title(f"{footage}: touchdowns (green success, red failure, grey unjudged), starts ^, "
+                 f"risk map at t={t_ref:.0f} s", fontsize=9)  # fmt: skip
+    ax.set_axis_off()
+    return _png(fig)
+
+
+def figure_distributions(rows: list[Row], criterion: dict[str, Any] | None) -> str:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    keys = [("touchdown_speed_m_s", "touchdown speed (m/s)"), ("min_dist_person_m", "min distance to people in final descent (m)"),
+            ("risk_level", "risk level at touchdown"), ("time_to_land_s", "time to land (s)"),
+            ("path_length_m", "path length (m)"), ("energy_wh", "energy used (Wh)")]  # fmt: skip
+    fig, axes = plt.subplots(2, 3, figsize=(12, 6))
+    for ax, (key, label) in zip(axes.ravel(), keys, strict=True):
+        x = np.array([r[key] for r in rows if r.get(key) is not None], float)
+        if x.size == 0:
+            ax.text(0.5, 0.5, "unavailable", ha="center", va="center", transform=ax.transAxes)
+        elif key == "risk_level":
+            ax.bar(range(1, 6), [int(np.sum(x == lv)) for lv in range(1, 6)], color="#4575b4")
+            ax.set_xticks(range(1, 6))
+        else:
+            ax.hist(x, bins=min(30, max(5, x.size // 2)), color="#4575b4")
+        if criterion:
+            lim = {"touchdown_speed_m_s": criterion.get("max_touchdown_speed_m_s"),
+                   "min_dist_person_m": criterion.get("min_dist_person_m"),
+                   "risk_level": criterion.get("max_risk_level")}.get(key)  # fmt: skip
+            if lim is not None:
+                ax.axvline(float(lim), color="#d73027", ls="--", lw=1)
+        ax.set_title(label, fontsize=9)
+    fig.tight_layout()
+    return _png(fig)
+
+
+def _fmt(v: Any) -> str:
+    if v is None:
+        return "—"
+    if isinstance(v, float):
+        return f"{v:.3g}" if math.isfinite(v) else "—"
+    return html.escape(str(v))
+
+
+_CSS = """body{font-family:sans-serif;margin:24px;max-width:1200px;color:#222}table{border-collapse:collapse;
+font-size:13px}td,th{border:1px solid #ccc;padding:3px 6px;text-align:right}th{background:#eee}
+td.l,th.l{text-align:left}.ok{color:#1a9850;font-weight:bold}.bad{color:#d73027;font-weight:bold}img{max-width:100%}
+code{background:#f4f4f4;padding:1px 4px}"""
+
+
+def render_html(doc: dict[str, Any], out_dir: Path) -> str:
+    rows: list[Row] = doc["rows"]
+    agg = doc["aggregate"]
+    spec = doc["spec"]
+    parts = [f"<!doctype html><html><head><meta charset='utf-8'><title>viva-sitl trials: "
+             f"{html.escape(spec['name'])} [{html.escape(doc['pilot'])}]</title><style>{_CSS}</style></head><body>",
+             f"<h1>Landing trials: {html.escape(spec['name'])} — pilot <code>{html.escape(doc['pilot'])}</code></h1>",
+             f"<p>{doc['trials_done']} of {doc['trials_total']} trials"
+             f"{'' if doc['complete'] else ' (incomplete: <code>--resume</code> completes the rest)'}; seed "
+             f"{spec['seed']}; spec <code>{html.escape(spec['source'])}</code>; backend {doc['backend']} × "
+             f"{doc['jobs']}; viva-sitl {doc['viva_sitl_version']}; {doc['created_utc']}. Files: "
+             f"<a href='results.json'>results.json</a>, <a href='results.csv'>results.csv</a> "
+             f"(schema <code>{doc['schema']}</code>).</p>"]  # fmt: skip
+    rate = agg["success_rate"]
+    ci = agg["success_rate_ci95_wilson"]
+    parts.append(
+        f"<h2>Success</h2><p>Criterion <b>{html.escape(agg['criterion'])}</b> (minimum distance over the final "
+        f"descent below {spec['final_descent_below_m']:g} m): "
+        + (f"<b>{agg['success']}/{agg['success_judged']} = {100 * rate:.1f} %</b> (95 % CI {100 * ci[0]:.1f}–"
+           f"{100 * ci[1]:.1f} %, Wilson; bootstrap {agg['success_rate_ci95_bootstrap']})" if rate is not None
+           else "<b>unavailable</b> (no ground truth for these footages)")
+        + f". Landed: {_fmt(agg['landed_rate'])}. Ends: "
+        + ", ".join(f"{k} {v}" for k, v in agg["ends"].items()) + ".</p>"
+    )  # fmt: skip
+    parts.append("<table><tr><th class='l'>score</th><th>n</th><th>mean</th><th>95 % CI (bootstrap)</th>"
+                 "<th>median</th><th>p10</th><th>p90</th><th>min</th><th>max</th></tr>")  # fmt: skip
+    for key, s in agg["scores"].items():
+        if s["n"] == 0:
+            parts.append(
+                f"<tr><td class='l'>{key}</td><td>0</td><td colspan=7 class='l'>unavailable</td></tr>"
+            )
+            continue
+        parts.append(f"<tr><td class='l'>{key}</td><td>{s['n']}</td><td>{_fmt(s['mean'])}</td><td>"
+                     f"{_fmt(s['mean_ci95'][0])} – {_fmt(s['mean_ci95'][1])}</td><td>{_fmt(s['median'])}</td>"
+                     f"<td>{_fmt(s['p10'])}</td><td>{_fmt(s['p90'])}</td><td>{_fmt(s['min'])}</td>"
+                     f"<td>{_fmt(s['max'])}</td></tr>")  # fmt: skip
+    parts.append("</table>")
+    try:
+        import matplotlib  # noqa: F401
+
+        figs = True
+    except ImportError:
+        figs = False
+        parts.append("<p>(figures need matplotlib: <code>pip install 'viva-sitl[trials]'</code>)</p>")
+    if figs and rows:
+        parts.append("<h2>Touchdown points</h2>")
+        for footage in sorted({r["footage"] for r in rows}):
+            try:
+                b64 = figure_touchdowns(doc, out_dir, footage)
+            except Exception as exc:  # noqa: BLE001 - a figure must never lose the report
+                parts.append(f"<p>figure for {html.escape(footage)} failed: {html.escape(str(exc))}</p>")
+                continue
+            if b64:
+                parts.append(
+                    f"<img alt='touchdowns over {html.escape(footage)}' src='data:image/png;base64,{b64}'>"
+                )
+        parts.append("<h2>Distributions</h2>")
+        parts.append(f"<img alt='distributions' src='data:image/png;base64,"
+                     f"{figure_distributions(rows, spec.get('criterion'))}'>")  # fmt: skip
+    worst = sorted(rows, key=_badness)[:15]
+    parts.append("<h2>Worst trials</h2><table><tr><th>trial</th><th class='l'>end</th><th>success</th>"
+                 "<th>touchdown speed (m/s)</th><th>min dist person (m)</th><th>risk</th><th>time to land (s)</th>"
+                 "<th class='l'>why</th><th class='l'>logs</th></tr>")  # fmt: skip
+    for r in worst:
+        d = f"trials/{int(r['trial']):04d}"
+        ok = r.get("success")
+        cls = "ok" if ok else "bad" if ok is False else ""
+        parts.append(
+            f"<tr><td>{r['trial']}</td><td class='l'>{_fmt(r['end'])}</td><td class='{cls}'>{_fmt(ok)}</td>"
+            f"<td>{_fmt(r['touchdown_speed_m_s'])}</td><td>{_fmt(r['min_dist_person_m'])}</td>"
+            f"<td>{_fmt(r['risk_level'])}</td><td>{_fmt(r['time_to_land_s'])}</td>"
+            f"<td class='l'>{_fmt(r.get('criterion_failures') or r.get('end_detail'))}</td>"
+            f"<td class='l'><a href='{d}/trajectory.csv'>trajectory</a> <a href='{d}/events.jsonl'>events</a> "
+            f"<a href='{d}/scenario.json'>scenario</a>"
+            + (f" <a href='{d}/vehicle.tlog'>tlog</a>" if (out_dir / d / "vehicle.tlog").exists() else "")
+            + (f" <a href='{d}/vac.mp4'>video</a>" if (out_dir / d / "vac.mp4").exists() else "")
+            + "</td></tr>"
+        )  # fmt: skip
+    parts.append("</table></body></html>")
+    return "\n".join(parts)
+
+
+def _badness(r: Row) -> tuple[int, float]:
+    rank = 0 if r.get("success") is False else 1 if r.get("success") is None else 2
+    d = r.get("min_dist_person_m")
+    return rank, (d if d is not None else math.inf)
+
+
+def compare_docs(a: dict[str, Any], b: dict[str, Any]) -> dict[str, Any]:
+    res = paired(a["rows"], b["rows"])
+    res["a"] = {"pilot": a["pilot"], "spec": a["spec"]["source"], "seed": a["spec"]["seed"]}
+    res["b"] = {"pilot": b["pilot"], "spec": b["spec"]["source"], "seed": b["spec"]["seed"]}
+    sa = {(s["index"], s["seed"]): s for s in a["scenarios"]}
+    sb = {(s["index"], s["seed"]): s for s in b["scenarios"]}
+    res["same_scenarios"] = all(sa[k] == sb[k] for k in set(sa) & set(sb)) and set(sa) == set(sb)
+    return res
