@@ -241,7 +241,7 @@ def test_inprocess_pilots_end_to_end_pool_determinism_and_single_trial(tmp_path:
             assert r["end"] == "landed", r
             assert r["touchdown_speed_m_s"] < 1.2 and r["time_to_land_s"] > 0 and r["energy_wh"] > 0
             assert r["seed"] == s.seed and r["land_at_s"] == 0.5
-            t = _csv_rows(camp.out_dir / "trials" / f"{s.index:04d}" / "trajectory.csv")
+            t = _csv_rows(camp.out_dir / "trials" / f"{s.index:04d}" / "trial_trajectory.csv")
             assert -float(t[0]["down_m"]) == pytest.approx(s.altitude_m, abs=0.05)  # the air start pose
             assert t[-1]["landed"] == "1" and t[-1]["armed"] == "0"
             kinds = [json.loads(x)["kind"] for x in

@@ -67,7 +67,7 @@ def test_mavsdk_script_unchanged_as_pilot(tmp_path: Path) -> None:
     assert [r["end"] for r in rows] == ["landed", "landed"], rows
     for r in rows:
         tdir = tmp_path / "trials" / f"{r['trial']:04d}"
-        with (tdir / "trajectory.csv").open() as f:
+        with (tdir / "trial_trajectory.csv").open() as f:
             traj = list(csv.DictReader(f))
         assert max(-float(x["down_m"]) for x in traj) == pytest.approx(6.0, abs=0.7)  # the script's takeoff
         assert abs(r["touchdown_north_m"] - r["start_north_m"]) < 1.5 and r["touchdown_speed_m_s"] < 1.2

@@ -27,6 +27,10 @@ from viva_sitl.autopilot import Autopilot, ParamStore, Severity
 from viva_sitl.dynamics import EavState
 from viva_sitl.evaluation.spec import Scenario
 
+# The trial log (its own columns, for scoring); `run`'s 30 Hz trajectory.csv (viva_sitl/recording.py, for replay)
+# is a different file in the same run directory.
+TRIAL_TRAJECTORY_FILE = "trial_trajectory.csv"
+
 TRAJECTORY_COLUMNS = (
     "t_s", "sim_time_s", "north_m", "east_m", "down_m", "vn_m_s", "ve_m_s", "vd_m_s", "roll_rad", "pitch_rad",
     "yaw_rad", "thrust_n", "mode", "armed", "landed", "battery_remaining", "inside_footage",
@@ -81,7 +85,7 @@ class TrialLog:
 
     def write(self, trial_dir: Path) -> None:
         trial_dir.mkdir(parents=True, exist_ok=True)
-        with (trial_dir / "trajectory.csv").open("w", newline="") as f:
+        with (trial_dir / TRIAL_TRAJECTORY_FILE).open("w", newline="") as f:
             w = csv.writer(f)
             w.writerow(TRAJECTORY_COLUMNS)
             w.writerows(self.rows)
@@ -103,7 +107,7 @@ class TrialLog:
     def read(cls, trial_dir: Path) -> TrialLog:
         """Reload what `write` left (used for external pilots, whose vehicle runs in `viva-sitl run`)."""
         log = cls()
-        with (trial_dir / "trajectory.csv").open(newline="") as f:
+        with (trial_dir / TRIAL_TRAJECTORY_FILE).open(newline="") as f:
             r = csv.reader(f)
             next(r)
             for row in r:

@@ -117,7 +117,7 @@ def figure_touchdowns(doc: dict[str, Any], out_dir: Path, footage: str) -> str |
     s = img.shape[1] / g.width_px
     traj_xy: list[np.ndarray] = []
     for r in rows:
-        p = out_dir / "trials" / f"{int(r['trial']):04d}" / "trajectory.csv"
+        p = out_dir / "trials" / f"{int(r['trial']):04d}" / "trial_trajectory.csv"
         try:
             a = np.genfromtxt(p, delimiter=",", skip_header=1, usecols=(2, 3))
         except (OSError, ValueError):
@@ -261,9 +261,9 @@ def render_html(doc: dict[str, Any], out_dir: Path) -> str:
             f"<td>{_fmt(r['touchdown_speed_m_s'])}</td><td>{_fmt(r['min_dist_person_m'])}</td>"
             f"<td>{_fmt(r['risk_level'])}</td><td>{_fmt(r['time_to_land_s'])}</td>"
             f"<td class='l'>{_fmt(r.get('criterion_failures') or r.get('end_detail'))}</td>"
-            f"<td class='l'><a href='{d}/trajectory.csv'>trajectory</a> <a href='{d}/events.jsonl'>events</a> "
+            f"<td class='l'><a href='{d}/trial_trajectory.csv'>trajectory</a> <a href='{d}/events.jsonl'>events</a> "
             f"<a href='{d}/scenario.json'>scenario</a>"
-            + (f" <a href='{d}/vehicle.tlog'>tlog</a>" if (out_dir / d / "vehicle.tlog").exists() else "")
+            + (f" <a href='{d}/telemetry.tlog'>tlog</a>" if (out_dir / d / "telemetry.tlog").exists() else "")
             + (f" <a href='{d}/vac.mp4'>video</a>" if (out_dir / d / "vac.mp4").exists() else "")
             + "</td></tr>"
         )  # fmt: skip

@@ -78,7 +78,7 @@ def run_inprocess_trial(
     video: bool = False,
     wall_limit_s: float | None = None,
 ) -> dict[str, Any]:
-    """Fly one trial; write trajectory.csv, events.jsonl, end.json (+ vac.mp4 with `video`) to trial_dir; return
+    """Fly one trial; write trial_trajectory.csv, events.jsonl, end.json (+ vac.mp4 with `video`) to trial_dir; return
     the result row (scores). Never raises for a pilot's fault: the trial ends with end = pilot_error."""
     wall0 = time.perf_counter()
     trial_dir.mkdir(parents=True, exist_ok=True)

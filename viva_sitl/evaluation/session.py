@@ -8,7 +8,7 @@ vivasitl.scenario.v1, plus "limits"); an external pilot reads the same file (VIV
   - by ScenarioSession (app.py calls it after every physics step): the footage clock (footage_time_s), the
     TrialMonitor ("land now" and failures at their times, sent as STATUSTEXT, "land now" repeated every
     LAND_NOW_REPEAT_S; the trajectory; the end), and at the
-    end trajectory.csv / events.jsonl / end.json in the run directory and `viva-sitl trial: {json}` (the end
+    end trial_trajectory.csv / events.jsonl / end.json in the run directory and `viva-sitl trial: {json}` (the end
     summary) on stdout; the app stops LINGER_S later (a pilot can still close its connection cleanly).
 """
 
