@@ -18,7 +18,7 @@ from viva_sitl.dynamics import (
     rot_body_to_ned,
     step,
 )
-from viva_sitl.dynamics.rotation import euler_from_quat, euler_from_rot, quat_from_euler
+from viva_sitl.dynamics.rotation import euler_from_quat, euler_from_rot, quat_from_euler, wrap_pi
 
 # NED <-> the paper's z-up world (north, west, up); FRD <-> FLU body. C is its own inverse.
 C = np.diag([1.0, -1.0, -1.0])
@@ -69,8 +69,12 @@ def test_step_matches_paper_equation(params: EavParams) -> None:
         roll, pitch, yaw = rng.uniform(-0.5, 0.5, 3)
         thrust = float(rng.uniform(2.0, 7.0))
         state = step(state, EavCommand(roll, pitch, yaw, thrust), params)
+        if params.ideal_attitude:  # the paper: R_k is the commanded attitude
+            assert tuple(state.att_rpy_rad) == (roll, pitch, wrap_pi(yaw))
+        # R_k is the attitude the airframe reached this step (the default airframe lags its command)
+        r_k, p_k, y_k = (float(a) for a in state.att_rpy_rad)
         x0 = paper_step_zup(
-            x1, x2, roll, pitch, yaw, thrust, np.zeros(3), params.mass_kg, params.drag_kd_n_s_m,
+            x1, x2, r_k, p_k, y_k, thrust, np.zeros(3), params.mass_kg, params.drag_kd_n_s_m,
             params.gravity_m_s2, params.dt_s,
         )  # fmt: skip
         assert np.max(np.abs(C @ state.pos_ned_m - x0)) < 1e-9
@@ -110,7 +114,7 @@ def test_drag_terminal_velocity() -> None:
 
 
 def test_tilt_accelerates_in_the_expected_direction() -> None:
-    p = EavParams()
+    p = EavParams().with_ideal_attitude()  # the equation's signs, with the attitude exactly as commanded
     s = EavState.at_rest((0, 0, -20), dt_s=p.dt_s)
     tilt = math.radians(10)
     thrust = p.hover_thrust_n / math.cos(tilt)
@@ -192,6 +196,67 @@ def test_attitude_first_order_response() -> None:
     for _ in range(25):  # one time constant
         s = step(s, EavCommand(0.2, 0.0, 0.0, p.hover_thrust_n), p)
     assert s.roll_rad == pytest.approx(0.2 * (1 - math.exp(-1)), rel=1e-6)
+
+
+def _pitch_step(p: EavParams, pitch_cmd_rad: float, seconds: float) -> list[float]:
+    s = EavState.at_rest((0, 0, -50), dt_s=p.dt_s)
+    out = []
+    for _ in range(round(seconds / p.dt_s)):
+        s = step(s, EavCommand(0.0, pitch_cmd_rad, 0.0, p.hover_thrust_n), p)
+        out.append(s.pitch_rad)
+    return out
+
+
+def test_default_airframe_attitude_is_px4_like() -> None:
+    """PX4's defaults: tau = 1/MC_PITCH_P (6.5), rate limits MC_PITCHRATE_MAX 220, MC_YAWRATE_MAX 200 deg/s."""
+    p = EavParams()
+    assert p.attitude_tau_s == pytest.approx(1 / 6.5) and p.yaw_tau_s == pytest.approx(1 / 2.8)
+    assert (p.max_roll_pitch_rate_deg_s, p.max_yaw_rate_deg_s) == (220.0, 200.0)
+    assert not p.ideal_attitude
+    # a small step (10 deg): never rate-limited (initial rate 10 deg / 0.154 s = 65 deg/s), 63 % after one tau
+    small = math.radians(10.0)
+    pitch = _pitch_step(p, small, 1.0)
+    n_tau = next(i + 1 for i, v in enumerate(pitch) if v >= 0.632 * small)
+    assert n_tau * p.dt_s == pytest.approx(p.attitude_tau_s, abs=2 * p.dt_s)
+    assert pitch[0] < 0.05 * small  # not there in one step
+    assert pitch[-1] == pytest.approx(small, rel=2e-3)  # within e^-6.5 after 1 s = 6.5 tau
+    # a large step (50 deg): the rate limit (220 deg/s) governs first; 63 % takes longer than tau
+    big = math.radians(50.0)
+    pitch = _pitch_step(p, big, 1.5)
+    rates = np.diff([0.0, *pitch]) / p.dt_s
+    assert math.degrees(float(np.max(rates))) == pytest.approx(220.0, rel=1e-9)
+    # 220 deg/s until the error is 220 deg/s x tau (33.8 deg), then first order down to the 37 % left (18.4 deg)
+    rate_max, tau = 220.0, p.attitude_tau_s
+    err_sat = rate_max * tau
+    t_expected = (50.0 - err_sat) / rate_max + tau * math.log(err_sat / (0.368 * 50.0))
+    n_tau = next(i + 1 for i, v in enumerate(pitch) if v >= 0.632 * big)
+    assert n_tau * p.dt_s == pytest.approx(t_expected, abs=2 * p.dt_s)
+    assert t_expected > 1.05 * tau  # slower than the unsaturated response
+    assert pitch[-1] == pytest.approx(big, rel=1e-3)
+    # yaw: slower, limited to 200 deg/s, and takes the short way round through +-pi
+    s = EavState.at_rest((0, 0, -50), yaw_rad=math.radians(170.0), dt_s=p.dt_s)
+    yaws = []
+    for _ in range(round(0.5 / p.dt_s)):
+        s = step(s, EavCommand(0.0, 0.0, math.radians(-170.0), p.hover_thrust_n), p)
+        yaws.append(s.yaw_rad)
+    assert all(abs(y) > math.radians(160.0) for y in yaws)  # never swings through 0
+    assert abs(wrap_pi(yaws[-1] - math.radians(-170.0))) < math.radians(5.0)
+
+
+def test_paper_preset_attitude_is_instant() -> None:
+    p = EavParams.paper()
+    assert p.ideal_attitude
+    pitch = _pitch_step(p, math.radians(50.0), 0.2)
+    assert pitch == [math.radians(50.0)] * len(pitch)  # the command, from the first step on
+    assert EavParams().with_ideal_attitude().ideal_attitude
+
+
+def test_attitude_params_validated() -> None:
+    for key in ("attitude_tau_s", "yaw_tau_s", "max_roll_pitch_rate_deg_s", "max_yaw_rate_deg_s"):
+        with pytest.raises(ValueError, match=key):
+            EavParams(**{key: -1.0})
+        with pytest.raises(ValueError, match=key):
+            EavParams(**{key: math.inf})
 
 
 def test_non_finite_command_rejected() -> None:

@@ -16,6 +16,8 @@ gym = pytest.importorskip("gymnasium")
 from gymnasium.utils.env_checker import check_env  # noqa: E402
 
 import viva_sitl.gym  # noqa: E402,F401  (registers the ids)
+from viva_sitl.config import SimConfig  # noqa: E402
+from viva_sitl.dynamics import EavParams  # noqa: E402
 from viva_sitl.gym import (  # noqa: E402
     LandingEnv,
     LandingScoreConfig,
@@ -106,12 +108,17 @@ def test_hover_and_action_directions_follow_viva_safeland() -> None:
         for _ in range(30):
             obs, *_ = env.step(np.array(action, np.float32))
         assert np.sign(obs[idx]) == sign, (action, obs)
-    # yaw rate: 30 deg/s x 1 s
-    env.reset(seed=0, options=level_start())
-    for _ in range(30):
-        obs, *_ = env.step(np.array([0, 0, 1, 0], np.float32))
-    assert math.degrees(obs[8]) == pytest.approx(-30.0 * env.vehicle.time_s, abs=0.5)
-    assert env.vehicle.time_s == pytest.approx(1.0, abs=1e-9)  # 30 control steps at 30 Hz of 250 Hz physics
+    # yaw rate: 30 deg/s x 1 s with DroneEnv's instant attitude; the default airframe follows the yaw ramp first
+    # order (tau = 1/MC_YAW_P): r (t - tau (1 - exp(-t / tau)))
+    for physics in (EavParams().with_ideal_attitude(), EavParams()):
+        env = LandingEnv("synthetic", observation="state", config=SimConfig(physics=physics))
+        env.reset(seed=0, options=level_start())
+        for _ in range(30):
+            obs, *_ = env.step(np.array([0, 0, 1, 0], np.float32))
+        t, tau = env.vehicle.time_s, physics.yaw_tau_s
+        ramp_s = t - tau * (1.0 - math.exp(-t / tau)) if tau > 0 else t
+        assert math.degrees(obs[8]) == pytest.approx(-30.0 * ramp_s, abs=0.5), physics
+        assert t == pytest.approx(1.0, abs=1e-9)  # 30 control steps at 30 Hz of 250 Hz physics
 
 
 def test_velocity_mode_flies_through_the_autopilot() -> None:

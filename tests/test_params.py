@@ -214,3 +214,23 @@ def test_user_set_sim_params_override_the_config() -> None:
     ap = Autopilot(ps, EavParams())
     assert ap.eav_params().drag_kd_n_s_m == pytest.approx(0.3)
     assert ps.get("SIM_MASS") == pytest.approx(EavParams().mass_kg)
+
+
+def test_sim_attitude_params_set_the_airframe_response() -> None:
+    ps = ParamStore()
+    ap = Autopilot(ps, EavParams())
+    # defaults = PX4's: tau = 1/MC_ROLL_P, 1/MC_YAW_P; rate limits = MC_ROLLRATE_MAX, MC_YAWRATE_MAX
+    assert ps.get("SIM_ATT_TAU") == pytest.approx(1.0 / ps.get("MC_ROLL_P"))
+    assert ps.get("SIM_YAW_TAU") == pytest.approx(1.0 / ps.get("MC_YAW_P"))
+    assert ps.get("SIM_RP_RATE_MAX") == ps.get("MC_ROLLRATE_MAX") == ps.get("MC_PITCHRATE_MAX")
+    assert ps.get("SIM_YAW_RATE_MAX") == ps.get("MC_YAWRATE_MAX")
+    assert ap.eav_params() == EavParams()
+    for name in ("SIM_ATT_TAU", "SIM_YAW_TAU", "SIM_RP_RATE_MAX", "SIM_YAW_RATE_MAX"):
+        ps.set(name, 0.0)
+    assert ap.eav_params().ideal_attitude  # live over PARAM_SET: the paper's instant attitude
+    ps.set("SIM_ATT_TAU", 0.25)
+    assert ap.eav_params().attitude_tau_s == 0.25
+    # the paper airframe in the config: the parameters report its zeros
+    ps2 = ParamStore()
+    assert Autopilot(ps2, EavParams.paper()).eav_params() == EavParams.paper()
+    assert ps2.get("SIM_ATT_TAU") == 0.0 and ps2.get("SIM_YAW_RATE_MAX") == 0.0

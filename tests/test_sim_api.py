@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from viva_sitl.config import ConfigError, SimConfig
-from viva_sitl.dynamics import EavCommand
+from viva_sitl.dynamics import EavCommand, EavParams
 from viva_sitl.sim import Simulator
 
 REPO = Path(__file__).resolve().parents[1]
@@ -97,6 +97,7 @@ def test_config_file_round_trip_and_errors(tmp_path: Path) -> None:
     assert cfg.camera.width_px == 320 and cfg.camera.mount.name == "GIMBAL"
     assert cfg.params == (("MIS_TAKEOFF_ALT", 10.0),)
     assert SimConfig.load(REPO / "configs" / "default.toml") == SimConfig()
+    assert SimConfig.load(REPO / "configs" / "paper.toml") == SimConfig(physics=EavParams.paper())
 
     cases = {
         "[physics]\nmass = 1.0\n": "unknown key 'mass'",

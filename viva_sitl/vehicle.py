@@ -7,8 +7,8 @@
     frame = vehicle.render()                       # the VAC view at the current state
 
 Free-running and headless: nothing here reads a clock or does I/O; the caller owns time (the app paces `step` with
-clock.run_paced, tests and trials call it as fast as they like). The SIM_* parameters (mass, drag, wind) reach the
-physics before every step, so a PARAM_SET between two steps applies to the next one.
+clock.run_paced, tests and trials call it as fast as they like). The SIM_* parameters (mass, drag, wind, attitude
+response) reach the physics before every step, so a PARAM_SET between two steps applies to the next one.
 
 This is the only place that steps the autopilot and the physics together: the app, the MAVLink selftest vehicle, the
 tests, the trials runner and the Gymnasium environment all drive a Vehicle.

@@ -132,6 +132,10 @@ class FlightContext:
             "SIM_WIND_E": eav.wind.mean_wind_ned_m_s[1],
             "SIM_WIND_D": eav.wind.mean_wind_ned_m_s[2],
             "SIM_GUST_STD": eav.wind.gust_std_m_s,
+            "SIM_ATT_TAU": eav.attitude_tau_s,
+            "SIM_YAW_TAU": eav.yaw_tau_s,
+            "SIM_RP_RATE_MAX": eav.max_roll_pitch_rate_deg_s,
+            "SIM_YAW_RATE_MAX": eav.max_yaw_rate_deg_s,
         }
         for name in SIM_EAV_PARAMS:
             if not self.params.is_modified(name):
@@ -141,8 +145,8 @@ class FlightContext:
     def eav_params(self) -> EavParams:
         """The airframe with SIM_* applied (cached on the parameter revision; the same object while unchanged).
 
-        SIM_MASS scales max_thrust_n too (same thrust-to-weight ratio as configured); dt, tilt limit, ground and
-        attitude lag stay as configured.
+        SIM_MASS scales max_thrust_n too (same thrust-to-weight ratio as configured); SIM_ATT_TAU, SIM_YAW_TAU,
+        SIM_RP_RATE_MAX, SIM_YAW_RATE_MAX set the attitude response; dt, tilt limit and ground stay as configured.
         """
         cached = self._eav_cached
         assert cached is not None
@@ -162,6 +166,10 @@ class FlightContext:
                 if mass == base.mass_kg
                 else base.max_thrust_n * mass / base.mass_kg,
                 wind=wind,
+                attitude_tau_s=p.get("SIM_ATT_TAU"),
+                yaw_tau_s=p.get("SIM_YAW_TAU"),
+                max_roll_pitch_rate_deg_s=p.get("SIM_RP_RATE_MAX"),
+                max_yaw_rate_deg_s=p.get("SIM_YAW_RATE_MAX"),
             )
             if new != cached:
                 self._eav_cached = cached = new

@@ -11,7 +11,7 @@ value for an INT32 parameter (ValueError, value unchanged). `stored(name)` is th
 MAVLink; `get(name)` is the value the vehicle uses: the stored value constrained to the documented range (PX4's
 controllers constrain their inputs in the same way), so an out-of-range write is visible but cannot break the loop.
 
-SIM_* parameters describe the EAV airframe (mass, drag, wind). The autopilot turns them into an EavParams with
+SIM_* parameters describe the EAV airframe (mass, drag, wind, attitude response). The autopilot turns them into an EavParams with
 `Autopilot.eav_params()`, which the app polls after each batch of physics steps (see that method).
 """
 
@@ -229,6 +229,11 @@ _WIRED_TABLE: tuple[tuple[str, ParamType, float, float, float, str], ...] = (
     ("SIM_WIND_E", _F, 0.0, -50.0, 50.0, "Sim: mean wind east (m/s)"),
     ("SIM_WIND_D", _F, 0.0, -20.0, 20.0, "Sim: mean wind down (m/s)"),
     ("SIM_GUST_STD", _F, 0.0, 0.0, 20.0, "Sim: gust std-dev per axis (m/s)"),
+    # attitude response: tau = 1/MC_ROLL_P (6.5) and 1/MC_YAW_P (2.8), rate limits = MC_ROLLRATE_MAX, MC_YAWRATE_MAX
+    ("SIM_ATT_TAU", _F, 1.0 / 6.5, 0.0, 2.0, "Sim: roll/pitch response time constant (s), 0 = instant"),
+    ("SIM_YAW_TAU", _F, 1.0 / 2.8, 0.0, 5.0, "Sim: yaw response time constant (s), 0 = instant"),
+    ("SIM_RP_RATE_MAX", _F, 220.0, 0.0, 1800.0, "Sim: roll/pitch rate limit (deg/s), 0 = unlimited"),
+    ("SIM_YAW_RATE_MAX", _F, 200.0, 0.0, 1800.0, "Sim: yaw rate limit (deg/s), 0 = unlimited"),
 )
 
 
@@ -305,6 +310,10 @@ SIM_EAV_PARAMS: tuple[str, ...] = (
     "SIM_WIND_E",
     "SIM_WIND_D",
     "SIM_GUST_STD",
+    "SIM_ATT_TAU",
+    "SIM_YAW_TAU",
+    "SIM_RP_RATE_MAX",
+    "SIM_YAW_RATE_MAX",
 )
 
 

@@ -46,19 +46,41 @@ def disturbance_force_n(
     return force, vec3(gust)
 
 
+def _axis_step(err_rad: float, tau_s: float, max_rate_deg_s: float, dt_s: float) -> float:
+    """One step of an attitude axis: first order towards the command (exact for a constant command), the change
+    clipped to the rate limit (PX4: rate setpoint = MC_*_P x error, constrained to MC_*RATE_MAX)."""
+    d = err_rad if tau_s <= 0.0 else (1.0 - math.exp(-dt_s / tau_s)) * err_rad
+    if max_rate_deg_s > 0.0:
+        lim = math.radians(max_rate_deg_s) * dt_s
+        d = max(-lim, min(lim, d))
+    return d
+
+
 def _attitude_response(state: EavState, cmd: EavCommand, params: EavParams) -> NDArray[np.float64]:
+    """The attitude reached this step. Ideal (the paper): the command. Otherwise PX4's attitude controller over an
+    ideal rate loop, per axis: first order towards the command, the change clipped to the rate limit. As PX4's
+    reduced-attitude control, the tilt (thrust direction) is tracked apart from the heading: the tilt is lagged as a
+    NED-fixed (forward, right) pair, so a yaw still under way never swings the thrust off its commanded direction
+    (small-angle composition; exact per axis while the heading is constant)."""
     roll = max(-params.max_tilt_rad, min(params.max_tilt_rad, cmd.roll_rad))
     pitch = max(-params.max_tilt_rad, min(params.max_tilt_rad, cmd.pitch_rad))
-    target = np.array([roll, pitch, cmd.yaw_rad])
-    if params.attitude_tau_s <= 0.0:
-        target[2] = wrap_pi(target[2])
-        return target
-    alpha = 1.0 - math.exp(-params.dt_s / params.attitude_tau_s)
-    err = target - state.att_rpy_rad
-    err[2] = wrap_pi(err[2])
-    out = state.att_rpy_rad + alpha * err
-    out[2] = wrap_pi(out[2])
-    return out
+    if params.ideal_attitude:
+        return np.array([roll, pitch, wrap_pi(cmd.yaw_rad)])
+    r0, p0, y0 = (float(a) for a in state.att_rpy_rad)
+    dt = params.dt_s
+    y1 = wrap_pi(y0 + _axis_step(wrap_pi(cmd.yaw_rad - y0), params.yaw_tau_s, params.max_yaw_rate_deg_s, dt))
+    d0, dc = wrap_pi(y0 - y1), wrap_pi(cmd.yaw_rad - y1)
+    if d0 == 0.0 and dc == 0.0:  # heading steady: roll and pitch are independent axes
+        fwd0, right0, fwd_c, right_c = -p0, r0, -pitch, roll
+    else:  # tilt pairs (forward = -pitch, right = roll) seen from the new heading y1
+        c0, s0 = math.cos(d0), math.sin(d0)
+        cc, sc = math.cos(dc), math.sin(dc)
+        fwd0, right0 = c0 * -p0 - s0 * r0, s0 * -p0 + c0 * r0
+        fwd_c, right_c = cc * -pitch - sc * roll, sc * -pitch + cc * roll
+    tau, rate = params.attitude_tau_s, params.max_roll_pitch_rate_deg_s
+    fwd1 = fwd0 + _axis_step(fwd_c - fwd0, tau, rate, dt)
+    right1 = right0 + _axis_step(right_c - right0, tau, rate, dt)
+    return np.array([right1, -fwd1, y1])
 
 
 def paper_update(

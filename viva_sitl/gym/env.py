@@ -9,7 +9,9 @@ Actions (`action_mode`):
 - "attitude" (default): viva-safeland DroneEnv's normalised [roll, pitch, yaw-rate, thrust] in [-1, 1]: roll =
   max_tilt_deg x a0, pitch = max_tilt_deg x a1 (its sign convention: +a1 = its +theta = nose down in NED terms is
   -pitch), yaw rate = max_yaw_rate_deg_s x a2 (its +psi is counter-clockwise seen from above), thrust = m g (1 + a3);
-  [0, 0, 0, 0] hovers. Flown with Vehicle.step_command (autopilot bypassed) for one control period.
+  [0, 0, 0, 0] hovers. Flown with Vehicle.step_command (autopilot bypassed) for one control period, through the
+  airframe's attitude response (default: a small PX4 quadcopter's lag and rate limits; DroneEnv's instant attitude
+  with config=SimConfig(physics=EavParams().with_ideal_attitude())).
 - "velocity": [v_north, v_east, v_down, yaw-rate] in [-1, 1] x (max_speed_m_s, max_speed_m_s, max_vspeed_m_s,
   max_yaw_rate_deg_s): an offboard velocity setpoint to the autopilot (OFFBOARD mode, as MAVSDK's
   set_velocity_ned), flown with Vehicle.step.

@@ -36,7 +36,7 @@ log = logging.getLogger(__name__)
 PARAM_ID_CHARS = 16
 HASH_PARAM = "_HASH_CHECK"
 LIST_BURST = 20  # PARAM_VALUEs per burst (PX4: up to 20 per mavlink loop iteration on UDP)
-LIST_BURST_PERIOD_S = 0.01  # one burst per this: 2000 parameters/s, a 1167-parameter list in ~0.6 s
+LIST_BURST_PERIOD_S = 0.01  # one burst per this: 2000 parameters/s, a 1172-parameter list in ~0.6 s
 MAX_LIST_STREAMS = 16  # peers listing at once; a new one replaces the oldest
 
 
