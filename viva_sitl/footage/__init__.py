@@ -8,9 +8,10 @@
 
 Sources: `VideoSource` (PyAV decode: sequential fast path, keyframe seek for jumps), `StillSource` (one image) and
 `SyntheticField` (the built-in SYNTHETIC CALIBRATION FIELD: metric grid + markers with analytic trajectories, no
-edge: drawn around the camera wherever it flies; more moving `GroundObject`s via `add_object`).
+edge: drawn around the camera wherever it flies; more moving `GroundObject`s via `add_object`; walking people, a
+crowd and cars with known paths from `synthetic_actors.py`).
 Metadata lives in viva_sitl/data/footage/<name>.toml (package data) (see `metadata.py`); DJI .SRT sidecars give the altitude.
-`viva-sitl footage list|info|get|ingest` is `footage_main` (catalog, Zenodo download with resume and checksums,
+`viva-sitl footage list|info|get|ingest|show|annotate` is `footage_main` (catalog, Zenodo download with resume and checksums,
 ingest into a fast-decoding cache). Errors users can cause raise `FootageError` (a ValueError) with one message.
 Threading: use a source from one thread (the renderer's worker); `frame()` is locked, so other callers are
 serialised, never corrupt.

@@ -1,8 +1,9 @@
-"""`viva-sitl footage list | info | get | ingest` (the lead's CLI passes everything after `footage` to footage_main)."""
+"""`viva-sitl footage list | info | get | ingest | show | annotate` (the lead's CLI passes everything after `footage` to footage_main)."""
 
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from pathlib import Path
 
@@ -10,7 +11,13 @@ from viva_sitl.cliargs import positive_float
 from viva_sitl.footage.catalog import cached_record_files, download_catalog
 from viva_sitl.footage.errors import FootageError
 from viva_sitl.footage.ingest import ingest
-from viva_sitl.footage.loader import DOWNLOAD_SUBDIR, INGEST_METADATA, INGEST_SUBDIR, open_footage
+from viva_sitl.footage.loader import (
+    DOWNLOAD_SUBDIR,
+    INGEST_METADATA,
+    INGEST_SUBDIR,
+    open_footage,
+    resolve_metadata,
+)
 from viva_sitl.footage.metadata import (
     IMAGE_EXTENSIONS,
     VIDEO_EXTENSIONS,
@@ -78,6 +85,26 @@ def build_parser() -> argparse.ArgumentParser:
     ing.add_argument("--crf", type=int, default=18, help="x264 quality (lower = better, bigger)")
     ing.add_argument("--max-frames", type=int, help="ingest only the first N frames")
     ing.add_argument("--no-progress", action="store_true", help="no progress bar")
+    show = sub.add_parser(
+        "show", parents=[common], help="overview PNG: the frame at --time with the risk map and the objects"
+    )
+    show.add_argument("footage", help="catalog name or path")
+    show.add_argument(
+        "--time", type=float, default=0.0, help="simulation time in s (selects frame and objects)"
+    )
+    show.add_argument("-o", "--out", type=Path, default=Path("overview.png"), help="output image (.png/.jpg)")
+    show.add_argument("--max-size", type=int, default=1600, help="longest side of the image, px")
+    show.add_argument("--no-risk", action="store_true", help="objects only, no risk layer")
+    ann = sub.add_parser("annotate", parents=[common], help="derive object tracks for footage that has none")
+    ann.add_argument("footage", help="catalog name or video path")
+    ann.add_argument("--method", choices=("motion", "detector"), default="motion",
+                     help="motion: background subtraction + tracker (no model); detector: ultralytics weights")  # fmt: skip
+    ann.add_argument(
+        "--detector", metavar="WEIGHTS", help="ultralytics weights for --method detector (e.g. yolo11n.pt)"
+    )
+    ann.add_argument("-o", "--out", type=Path,
+                     help="tracks file (default: <metadata stem>.tracks.csv beside the footage metadata)")  # fmt: skip
+    ann.add_argument("--no-progress", action="store_true", help="no progress bar")
     return p
 
 
@@ -175,6 +202,78 @@ def _cmd_ingest(args: argparse.Namespace, config_dir: Path, shared_dir: Path, ca
     return 0
 
 
+def _cmd_show(args: argparse.Namespace, config_dir: Path, shared_dir: Path, cache_dir: Path) -> int:
+    import cv2
+
+    from viva_sitl.world.model import world_from_source
+    from viva_sitl.world.overlay import render_overview
+
+    if args.out.suffix.lower() not in (".png", ".jpg", ".jpeg"):
+        raise FootageError(f"-o {args.out}: the overview is a .png or .jpg image")
+    if args.max_size < 16:
+        raise FootageError(f"--max-size must be >= 16, got {args.max_size}")
+    if not math.isfinite(args.time):
+        raise FootageError(f"--time must be a finite number, got {args.time}")
+    meta = resolve_metadata(args.footage, shared_dir=shared_dir, config_dir=config_dir, cache_dir=cache_dir)
+    with open_footage(args.footage, shared_dir=shared_dir, config_dir=config_dir, cache_dir=cache_dir) as src:
+        world = world_from_source(src, meta)
+        img = render_overview(world, src, args.time, args.max_size, show_risk=not args.no_risk)
+    if not cv2.imwrite(str(args.out), img):
+        raise FootageError(f"cannot write {args.out}")
+    objs = world.tracks.objects_at(args.time)
+    print(f"wrote {args.out} ({img.shape[1]}x{img.shape[0]}, t = {args.time:g} s, {len(objs)} objects)")
+    return 0
+
+
+def default_tracks_path(meta: FootageMetadata) -> Path:
+    """Where derived tracks go: beside the metadata file (<stem>.tracks.csv), else beside the media file."""
+    from viva_sitl.world.model import DERIVED_SUFFIX
+
+    if meta.config_file.endswith(".toml"):
+        cfg = Path(meta.config_file)
+        return cfg.with_name(cfg.stem + DERIVED_SUFFIX)
+    if meta.path:
+        media = Path(meta.path)
+        return media.with_name(media.stem + DERIVED_SUFFIX)
+    raise FootageError(f"footage {meta.name!r} has no metadata file or media path: give -o")
+
+
+def _cmd_annotate(args: argparse.Namespace, config_dir: Path, shared_dir: Path, cache_dir: Path) -> int:
+    from tqdm import tqdm
+
+    from viva_sitl.footage.boxfiles import write_viva
+    from viva_sitl.world.annotate import detector_tracks, motion_tracks
+
+    if args.method == "detector" and not args.detector:
+        raise FootageError("--method detector needs --detector WEIGHTS (an ultralytics .pt file)")
+    meta = resolve_metadata(args.footage, shared_dir=shared_dir, config_dir=config_dir, cache_dir=cache_dir)
+    out = Path(args.out) if args.out else default_tracks_path(meta)
+    if not out.parent.is_dir():
+        raise FootageError(f"output folder {out.parent} does not exist")
+    with (
+        open_footage(args.footage, shared_dir=shared_dir, config_dir=config_dir, cache_dir=cache_dir) as src,
+        tqdm(
+            total=src.frame_count, unit="frame", desc=f"annotate {meta.name}", disable=args.no_progress
+        ) as bar,
+    ):
+        if args.method == "motion":
+            rows = motion_tracks(src, progress=bar.update)
+        else:
+            rows = detector_tracks(src, args.detector, progress=bar.update)
+    comment = (
+        f"derived by viva-sitl footage annotate --method {args.method}"
+        + (f" --detector {args.detector}" if args.detector else "")
+        + f"\nfootage: {meta.name}; frames are 0-based footage frame indices; boxes in footage pixels"
+    )
+    try:
+        write_viva(out, rows, comment)
+    except OSError as exc:
+        raise FootageError(f"cannot write {out}: {exc.strerror or exc}") from None
+    n_tracks = len({r.track_id for r in rows})
+    print(f"wrote {out}: {n_tracks} tracks, {len(rows)} boxes ({args.method})")
+    return 0
+
+
 def footage_main(argv: list[str]) -> int:
     """Entry point of `viva-sitl footage ...`; returns the exit status (2 with one message on FootageError)."""
     args = build_parser().parse_args(argv)
@@ -190,6 +289,13 @@ def footage_main(argv: list[str]) -> int:
             return _cmd_get(args, config_dir, shared_dir, cache_dir)
         if args.cmd == "ingest":
             return _cmd_ingest(args, config_dir, shared_dir, cache_dir)
+        if args.cmd == "show":
+            return _cmd_show(args, config_dir, shared_dir, cache_dir)
+        if args.cmd == "annotate":
+            return _cmd_annotate(args, config_dir, shared_dir, cache_dir)
+    except KeyboardInterrupt:
+        print(f"viva-sitl footage {args.cmd}: interrupted; nothing was written", file=sys.stderr)
+        return 130
     except FootageError as exc:
         print(f"viva-sitl footage {args.cmd}: {exc}", file=sys.stderr)
         return 2

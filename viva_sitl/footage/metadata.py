@@ -49,6 +49,7 @@ from pathlib import Path
 from typing import Any
 
 from viva_sitl.footage.errors import FootageError
+from viva_sitl.footage.worldmeta import RiskSpec, TracksSpec, parse_risk, parse_tracks
 
 VIDEO_EXTENSIONS = frozenset(
     {".mp4", ".mov", ".mkv", ".avi", ".m4v", ".webm", ".ts", ".mts", ".h264", ".hevc", ".y4m"}
@@ -98,6 +99,8 @@ class FootageMetadata:
     class_names: tuple[str, ...] = ()
     levels: tuple[str, ...] = ()  # ingest cache: absolute paths of half-, quarter-... resolution copies
     synthetic: tuple[tuple[str, Any], ...] = ()  # kind synthetic: SyntheticFieldParams overrides
+    tracks: TracksSpec | None = None  # [tracks]: objects over time (worldmeta.py)
+    risk: RiskSpec | None = None  # [risk]: ground risk map (worldmeta.py)
     config_file: str = ""  # where this came from
 
     def __post_init__(self) -> None:
@@ -156,6 +159,8 @@ _META_KEYS = {f.name for f in fields(FootageMetadata)} - {
     "annotations_format",
     "class_names",
     "synthetic",
+    "tracks",
+    "risk",
     "config_file",
 }
 _CATALOG_KEYS = {f.name for f in fields(CatalogSpec)} - {"defaults", "config_file"}
@@ -198,6 +203,8 @@ def metadata_from_table(
     table = dict(table)
     ann = table.pop("annotations", None)
     synth = table.pop("synthetic", None)
+    tracks = table.pop("tracks", None)
+    risk = table.pop("risk", None)
     unknown = set(table) - _META_KEYS
     if unknown:
         raise FootageError(f"{where}: unknown key(s) {', '.join(sorted(unknown))}")
@@ -254,6 +261,12 @@ def metadata_from_table(
         if not isinstance(synth, dict):
             raise FootageError(f"{where}: [synthetic] must be a table")
         values["synthetic"] = tuple(sorted(synth.items()))
+    if tracks is not None:
+        values["tracks"] = parse_tracks(tracks, where, lambda rel: _resolve(rel, base_dirs))
+    if risk is not None:
+        values["risk"] = parse_risk(
+            risk, where, Path(where).parent if where.endswith(".toml") else base_dirs[-1]
+        )
     return FootageMetadata(**values)
 
 

@@ -40,6 +40,7 @@ from viva_sitl.footage.annotations import Annotation, make_annotation
 from viva_sitl.footage.geometry import FootageGeometry
 from viva_sitl.footage.metadata import FootageKind, FootageMetadata
 from viva_sitl.footage.source import FootageSource, _readonly
+from viva_sitl.footage.synthetic_actors import draw_actors, draw_scene_ground
 
 LABEL = "SYNTHETIC CALIBRATION FIELD"
 GROUND_BGR = (78, 104, 92)  # olive-grey ground
@@ -388,6 +389,7 @@ class SyntheticField(FootageSource):
         else:
             img = np.empty((h, w, 3), np.uint8)
             img[:] = GROUND_BGR
+        draw_scene_ground(img, to_px)  # ring road + plaza of the moving people/cars (synthetic_actors.py)
         half_n, half_e = (cy + 0.5) * gsd, (cx + 0.5) * gsd
         n_lo, n_hi, e_lo, e_hi = n0 - half_n, n0 + half_n, e0 - half_e, e0 + half_e
         font = cv2.FONT_HERSHEY_SIMPLEX
@@ -454,6 +456,7 @@ class SyntheticField(FootageSource):
     def _draw_objects(self, img: NDArray[np.uint8], g: FootageGeometry, t_s: float) -> None:
         for obj in self.objects:
             obj.draw(img, g.ned_to_px, 1.0 / g.gsd_m_per_px, t_s)
+        draw_actors(img, t_s, g.ned_to_px, g.gsd_m_per_px)  # people and cars (synthetic_actors.py)
 
     def frame(self, index: int) -> NDArray[np.uint8]:
         index = int(index) % self._frame_count
