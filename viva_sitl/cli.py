@@ -134,6 +134,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     footage = sub.add_parser("footage", help="footage catalog: list | info | get | ingest", add_help=False)
     footage.add_argument("rest", nargs=argparse.REMAINDER)
+    # perception (issue 9): own parsers in viva_sitl/perception/cli.py, dispatched in main()
+    sub.add_parser("dataset", help="labelled VAC datasets: export", add_help=False)
+    sub.add_parser("perception", help="train perception models: train-sr | train-segmenter", add_help=False)
     return parser
 
 
@@ -176,6 +179,10 @@ def main(argv: list[str] | None = None) -> int:
         from viva_sitl.footage import footage_main
 
         return footage_main(argv[1:])
+    if argv[:1] in (["dataset"], ["perception"]):  # perception extra: own parsers (and --help)
+        from viva_sitl.perception.cli import dataset_main, perception_main
+
+        return (dataset_main if argv[0] == "dataset" else perception_main)(argv[1:])
     parser = build_parser()
     args = parser.parse_args(argv)
     logging.basicConfig(level=args.log_level, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
