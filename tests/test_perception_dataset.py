@@ -179,3 +179,18 @@ def test_export_cli_and_bad_input(tmp_path: Path) -> None:
         ExportSpec(footages=("synthetic", "interchange"), split="footage").check()
     with pytest.raises(PerceptionError, match="tilt range"):
         PoseRanges.parse("tilt=0:80")
+
+
+@pytest.mark.parametrize("cmd", ["train-segmenter", "train-sr"])
+def test_training_without_torch_names_the_extra(tmp_path: Path, cmd: str) -> None:
+    args = ["--data", str(tmp_path)] if cmd == "train-segmenter" else ["--footage", "synthetic"]
+    code = (
+        "import sys; sys.modules['torch'] = None\n"
+        "from viva_sitl.perception.cli import perception_main\n"
+        f"raise SystemExit(perception_main({[cmd, *args, '-o', str(tmp_path / 'x.pt')]!r}))\n"
+    )
+    r = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=120)
+    assert r.returncode == 2
+    assert r.stderr.strip() == (
+        f"viva-sitl perception {cmd}: this needs PyTorch, which is not installed: pip install 'viva-sitl[perception]'"
+    )
