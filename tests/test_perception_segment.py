@@ -64,7 +64,7 @@ def test_checkpoint_roundtrip_and_bad_input(tmp_path: Path) -> None:
     save_segmenter(m, tmp_path / "u.pt", frame_size=(128, 96))
     seg = Segmenter.load(tmp_path / "u.pt")
     out = seg.predict(np.zeros((96, 128, 3), np.uint8))
-    assert out.shape == (96, 128) and out.dtype == np.uint8 and 1 <= out.min() and out.max() <= 5
+    assert out.shape == (96, 128) and out.dtype == np.uint8 and out.min() >= 1 and out.max() <= 5
     with pytest.raises(PerceptionError, match=r"frame is 640x480, but this segmenter was trained on 128x96"):
         seg.predict(np.zeros((480, 640, 3), np.uint8))
     with pytest.raises(PerceptionError, match="HxWx3 uint8"):
