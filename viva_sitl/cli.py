@@ -136,7 +136,11 @@ def build_parser() -> argparse.ArgumentParser:
     footage.add_argument("rest", nargs=argparse.REMAINDER)
     # perception (issue 9): own parsers in viva_sitl/perception/cli.py, dispatched in main()
     sub.add_parser("dataset", help="labelled VAC datasets: export", add_help=False)
-    sub.add_parser("perception", help="train perception models: train-sr | train-segmenter", add_help=False)
+    sub.add_parser(
+        "perception",
+        help="train perception models: train-sr | train-segmenter | train-detector",
+        add_help=False,
+    )
     return parser
 
 

@@ -3,10 +3,14 @@
 Light parts import without torch (sr's OpenCV models, dataset export); torch parts (EDSR, U-Net) import it lazily and
 raise `PerceptionError` naming the extra to install when it is absent.
 
-    from viva_sitl.perception import SRConfig, SRMethod, load_upscaler, MagnifiedRender
+    from viva_sitl.perception import SRConfig, SRMethod, load_upscaler, MagnifiedRender   # sr.py
+    from viva_sitl.perception import Detector, train_detector                          # detect.py (perception-yolo)
+    from viva_sitl.perception.dataset import ExportSpec, export_dataset                # dataset.py
+    from viva_sitl.perception.segment import Segmenter, train_segmenter                # segment.py (torch)
 """
 
-from viva_sitl.perception.errors import INSTALL_HINT, PerceptionError
+from viva_sitl.perception.detect import Detection, Detector, train_detector
+from viva_sitl.perception.errors import INSTALL_HINT, INSTALL_HINT_YOLO, PerceptionError
 from viva_sitl.perception.sr import (
     BicubicUpscaler,
     MagnifiedRender,
@@ -19,6 +23,10 @@ from viva_sitl.perception.sr import (
 
 __all__ = [
     "INSTALL_HINT",
+    "INSTALL_HINT_YOLO",
+    "Detection",
+    "Detector",
+    "train_detector",
     "BicubicUpscaler",
     "MagnifiedRender",
     "OpenCVSR",

@@ -82,7 +82,7 @@ def dataset_main(argv: list[str]) -> int:
 
 
 def perception_main(argv: list[str]) -> int:
-    p = _Parser(prog="viva-sitl perception", description="train the perception models (needs the extra)")
+    p = _Parser(prog="viva-sitl perception", description="train the perception models (needs the extras)")
     sub = p.add_subparsers(dest="cmd", required=True)
     sr = sub.add_parser("train-sr", help="train our EDSR self-supervised on footage frames")
     sr.add_argument("--footage", required=True, help="catalog name(s) or path(s), comma-separated")
@@ -101,8 +101,20 @@ def perception_main(argv: list[str]) -> int:
     seg.add_argument("--batch", type=_positive_int, default=8)
     seg.add_argument("--seed", type=int, default=0)
     seg.add_argument("-o", "--output", required=True, help="checkpoint (.pt)")
+    det = sub.add_parser("train-detector", help="train a YOLO detector (ultralytics) on an exported dataset")
+    det.add_argument("--data", required=True, help="dataset directory or its data.yaml")
+    det.add_argument("--epochs", type=_positive_int, default=30)
+    det.add_argument("--imgsz", type=_positive_int, default=640)
+    det.add_argument("--batch", type=_positive_int, default=8)
+    det.add_argument("--model", default="yolov8n.yaml", help="architecture .yaml (offline) or starting .pt")
+    det.add_argument("--seed", type=int, default=0)
+    det.add_argument(
+        "-o", "--output", required=True, help="output directory (weights in OUTPUT/train/weights)"
+    )
     args = p.parse_args(argv)
 
+    if args.cmd == "train-detector":
+        return _run(lambda: _train_detector(args), "viva-sitl perception train-detector")
     if args.cmd == "train-sr":
         return _run(lambda: _train_sr(args), "viva-sitl perception train-sr")
     return _run(lambda: _train_segmenter(args), "viva-sitl perception train-segmenter")
@@ -144,3 +156,12 @@ def _train_segmenter(args: argparse.Namespace) -> int:
     from viva_sitl.perception.segment import train_segmenter_cli
 
     return train_segmenter_cli(args)
+
+
+def _train_detector(args: argparse.Namespace) -> int:
+    from viva_sitl.perception.detect import train_detector
+
+    best, m = train_detector(args.data, epochs=args.epochs, imgsz=args.imgsz, model=args.model, batch=args.batch,
+                             out_dir=args.output, seed=args.seed)  # fmt: skip
+    print(f"wrote {best} (val mAP50 {m['map50']:.3f}, mAP50-95 {m['map50_95']:.3f})")
+    return 0
