@@ -20,6 +20,7 @@ from viva_sitl.perception import (
     SRConfig,
     SRMethod,
     load_upscaler,
+    magnified_render_from_config,
 )
 from viva_sitl.perception.quality import degrade_area, psnr_db, ssim
 from viva_sitl.perception.sr import _pixel_shuffle
@@ -92,6 +93,9 @@ def test_bad_models_are_one_line_errors(sr_dir: Path, tmp_path: Path) -> None:
     with pytest.raises(PerceptionError, match="HxWx3 uint8 BGR"):
         up.upscale(np.zeros((10, 10), np.float32))  # type: ignore[arg-type]
     assert load_upscaler(SRConfig(method=SRMethod.NONE)) is None
+    assert magnified_render_from_config(SRConfig()) is None
+    mr = magnified_render_from_config(SRConfig("espcn", str(sr_dir / "ESPCN_x2.pb"), min_magnification=1.5))
+    assert isinstance(mr, MagnifiedRender) and mr.min_magnification == 1.5 and mr.upscaler.scale == 2
 
 
 def test_edsr_without_torch_names_the_extra(tmp_path: Path) -> None:

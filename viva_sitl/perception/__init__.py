@@ -19,6 +19,7 @@ from viva_sitl.perception.sr import (
     SRMethod,
     Upscaler,
     load_upscaler,
+    magnified_render_from_config,
 )
 
 __all__ = [
@@ -35,4 +36,5 @@ __all__ = [
     "SRMethod",
     "Upscaler",
     "load_upscaler",
+    "magnified_render_from_config",
 ]

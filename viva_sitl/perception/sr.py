@@ -4,8 +4,8 @@ When the camera flies low, one footage pixel covers more than one VAC pixel and 
 soft footage. `MagnifiedRender` (set as `Simulator.super_resolution`) then crops the footage region the VAC sees,
 upscales it with a learned model and warps from the upscaled crop instead:
 
-    up = load_upscaler(SRConfig(method="fsrcnn", model_path="models/sr/FSRCNN_x2.pb"))
-    sim.super_resolution = MagnifiedRender(up, min_magnification=1.0)
+    cfg = SRConfig(method="fsrcnn", model_path="models/sr/FSRCNN_x2.pb", min_magnification=1.0)
+    sim.super_resolution = magnified_render_from_config(cfg)      # None for method "none"
 
 Methods (`SRConfig.method`): none | bicubic | fsrcnn | espcn | edsr.
 - fsrcnn / espcn: the TensorFlow graphs of OpenCV's dnn_superres model zoo (FSRCNN_x2.pb, ESPCN_x3.pb, ...), loaded
@@ -416,3 +416,9 @@ class MagnifiedRender:
             image = add_sensor_noise(image, p.noise_std, rng)
         self.renders += 1
         return RenderResult(np.asarray(image, np.uint8), coverage, h_f2i, 0, rho, cam_rot_body)
+
+
+def magnified_render_from_config(config: SRConfig) -> MagnifiedRender | None:
+    """What `Simulator.super_resolution` should hold for a config (None for method none)."""
+    up = load_upscaler(config)
+    return None if up is None else MagnifiedRender(up, config.min_magnification)
