@@ -200,3 +200,19 @@ def test_edsr_shapes_roundtrip_and_training_lowers_the_loss(tmp_path: Path) -> N
     torch.save({"weights": torch.zeros(3)}, tmp_path / "other.pt")
     with pytest.raises(PerceptionError, match="not a viva-sitl EDSR checkpoint"):
         load_edsr(tmp_path / "other.pt")
+
+
+def test_train_sr_cli_writes_a_loadable_checkpoint(tmp_path: Path) -> None:
+    pytest.importorskip(
+        "torch", reason="EDSR needs the perception extra: pip install 'viva-sitl[perception]'"
+    )
+    out = tmp_path / "edsr.pt"
+    r = subprocess.run(
+        [sys.executable, "-m", "viva_sitl", "perception", "train-sr", "--footage", "synthetic", "--frames", "1",
+         "--steps", "3", "--feats", "4", "--blocks", "1", "-o", str(out)],
+        cwd=REPO, capture_output=True, text=True, timeout=300,
+    )  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    assert "wrote" in r.stdout and "EDSR x2" in r.stdout
+    up = load_upscaler(SRConfig(method="edsr", model_path=str(out)))
+    assert up is not None and up.upscale(np.zeros((8, 8, 3), np.uint8)).shape == (16, 16, 3)
