@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from viva_sitl.camera import CameraParams, ground_to_image_homography, pixel_to_ground
+from viva_sitl.camera import CameraParams, frame_camera_fields, ground_to_image_homography, pixel_to_ground
 from viva_sitl.perception import PerceptionError
 
 torch = pytest.importorskip(
@@ -98,6 +98,12 @@ def test_on_ground_follows_the_pose() -> None:
     q = pts @ ground_to_image_homography(pos, att, params).T
     u, v = q[:, 0] / q[:, 2], q[:, 1] / q[:, 2]
     assert u.min() >= 299.5 - 1 and u.max() <= 419.5 + 1 and v.min() >= 99.5 - 1 and v.max() <= 199.5 + 1
+    # the same through the fields the frame-and-pose socket sends
+    meta = {"pos_ned_m": list(pos), "att_rpy_rad": list(att), **frame_camera_fields(params, att)}
+    g2 = Segmenter.on_ground(levels, meta=meta, cell_m=0.2)
+    assert np.array_equal(g2.levels, g.levels) and (g2.north0_m, g2.east0_m) == pytest.approx(
+        (g.north0_m, g.east0_m)
+    )
 
 
 @pytest.mark.e2e

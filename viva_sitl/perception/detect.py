@@ -2,7 +2,7 @@
 
     det = Detector("runs/det/train/weights/best.pt")          # any ultralytics detection weights: .pt or .onnx
     for d in det.detect(frame_bgr): print(d.name, d.confidence, d.box_px)
-    ground = det.on_ground(dets, pos_ned_m, att_rpy_rad, camera_params)   # (k, 2) north/east of each box centre
+    ground = det.on_ground(dets, meta=frame_meta)               # (k, 2) north/east of each box centre
     best, metrics = train_detector("data/songdo/data.yaml", epochs=30, imgsz=640)   # ultralytics' own trainer
 
 Weights cannot be downloaded on machines without internet: `train_detector` starts from an architecture file
@@ -21,8 +21,9 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from viva_sitl.camera import CameraParams
-from viva_sitl.camera.projection import pixel_to_ground
+from viva_sitl.camera.projection import ground_to_image_homography
 from viva_sitl.perception.errors import INSTALL_HINT_YOLO, PerceptionError
+from viva_sitl.perception.geometry import ground_homography_from_meta, image_to_ground
 
 U8 = NDArray[np.uint8]
 WEIGHT_SUFFIXES = (".pt", ".onnx")
@@ -113,13 +114,26 @@ class Detector:
 
     @staticmethod
     def on_ground(
-        detections: list[Detection], pos_ned_m: ArrayLike, att_rpy_rad: ArrayLike, params: CameraParams
+        detections: list[Detection],
+        pos_ned_m: ArrayLike | None = None,
+        att_rpy_rad: ArrayLike | None = None,
+        params: CameraParams | None = None,
+        meta: Any = None,
     ) -> NDArray[np.float64]:
-        """(k, 2) north/east of each detection's box centre on the ground (NaN above the horizon)."""
+        """(k, 2) north/east of each detection's box centre on the ground (NaN above the horizon), through the
+        frame's pose: (pos_ned_m, att_rpy_rad, params) or `meta` (a FrameMeta from the frame-and-pose socket)."""
+        if meta is not None:
+            h = ground_homography_from_meta(meta)
+        elif pos_ned_m is not None and att_rpy_rad is not None and params is not None:
+            h = ground_to_image_homography(pos_ned_m, att_rpy_rad, params)
+        else:
+            raise PerceptionError(
+                "on_ground needs the frame's pose: meta=FrameMeta, or pos_ned_m, att_rpy_rad, params"
+            )
         if not detections:
             return np.zeros((0, 2))
         px = np.array([d.centre_px for d in detections]) - 0.5  # box edges -> pixel-centre coordinates
-        return pixel_to_ground(px, pos_ned_m, att_rpy_rad, params)[:, :2]
+        return image_to_ground(h, px)
 
 
 def train_detector(

@@ -3,7 +3,7 @@
     model, history = train_segmenter(Path("data/synth"), epochs=10)        # a `viva-sitl dataset export` folder
     save_segmenter(model, "unet.pt");  seg = Segmenter.load("unet.pt")
     levels = seg.predict(frame_bgr)                                          # (H, W) uint8, 1..5
-    ground = seg.on_ground(levels, pos_ned_m, att_rpy_rad, camera_params)    # GroundRisk raster in NED
+    ground = seg.on_ground(levels, meta=frame_meta)                         # GroundRisk raster in NED (or pose+params)
 
 Classes: 1..5 are the levels; mask value 0 (no ground seen) is ignored by the loss and never predicted. Frames are
 resized to the model's input size (default 320x240) and the prediction back to the frame size (nearest).
@@ -24,8 +24,9 @@ from numpy.typing import ArrayLike, NDArray
 from torch import nn
 
 from viva_sitl.camera import CameraParams
-from viva_sitl.camera.projection import ground_footprint, ground_to_image_homography
+from viva_sitl.camera.projection import ground_to_image_homography
 from viva_sitl.perception.errors import PerceptionError
+from viva_sitl.perception.geometry import ground_homography_from_meta, image_to_ground
 
 U8 = NDArray[np.uint8]
 CHECKPOINT_FORMAT = "viva-sitl-unet"
@@ -272,15 +273,29 @@ class Segmenter:
 
     @staticmethod
     def on_ground(
-        levels: U8, pos_ned_m: ArrayLike, att_rpy_rad: ArrayLike, params: CameraParams, cell_m: float = 0.5
+        levels: U8,
+        pos_ned_m: ArrayLike | None = None,
+        att_rpy_rad: ArrayLike | None = None,
+        params: CameraParams | None = None,
+        cell_m: float = 0.5,
+        meta: Any = None,
     ) -> GroundRisk:
-        """The image's levels on the ground through the frame's pose (nearest pixel per ground cell)."""
-        if levels.shape != (params.height_px, params.width_px):
+        """The image's levels on the ground (nearest pixel per ground cell) through the frame's pose: either
+        (pos_ned_m, att_rpy_rad, params) or `meta` (a FrameMeta from the frame-and-pose socket, or its dict)."""
+        if meta is not None:
+            h = ground_homography_from_meta(meta)
+        elif pos_ned_m is not None and att_rpy_rad is not None and params is not None:
+            h = ground_to_image_homography(pos_ned_m, att_rpy_rad, params)
+        else:
             raise PerceptionError(
-                f"levels are {levels.shape[1]}x{levels.shape[0]}, camera is {params.width_px}x{params.height_px}"
+                "on_ground needs the frame's pose: meta=FrameMeta, or pos_ned_m, att_rpy_rad, params"
             )
-        fp = ground_footprint(pos_ned_m, att_rpy_rad, params)
-        if fp is None:
+        rows_px, cols_px = levels.shape
+        corners = np.array(
+            [[-0.5, -0.5], [cols_px - 0.5, -0.5], [cols_px - 0.5, rows_px - 0.5], [-0.5, rows_px - 0.5]]
+        )
+        fp = image_to_ground(h, corners)
+        if not np.all(np.isfinite(fp)):
             raise PerceptionError("the view reaches the horizon: no bounded ground footprint to map")
         n0, e0 = fp[:, 0].min(), fp[:, 1].min()
         rows = int(math.ceil((fp[:, 0].max() - n0) / cell_m)) + 1
@@ -290,14 +305,13 @@ class Segmenter:
                 f"ground grid {cols}x{rows} at {cell_m} m is too large: use a larger cell_m"
             )
         nn_, ee = np.meshgrid(n0 + cell_m * np.arange(rows), e0 + cell_m * np.arange(cols), indexing="ij")
-        h = ground_to_image_homography(pos_ned_m, att_rpy_rad, params)
         q = np.stack([nn_.ravel(), ee.ravel(), np.ones(nn_.size)], axis=1) @ h.T
         ok = q[:, 2] > 1e-9
         u = np.full(nn_.size, -1.0)
         v = np.full(nn_.size, -1.0)
         u[ok], v[ok] = q[ok, 0] / q[ok, 2], q[ok, 1] / q[ok, 2]
         ui, vi = np.rint(u).astype(np.int64), np.rint(v).astype(np.int64)
-        inside = ok & (ui >= 0) & (ui < params.width_px) & (vi >= 0) & (vi < params.height_px)
+        inside = ok & (ui >= 0) & (ui < cols_px) & (vi >= 0) & (vi < rows_px)
         out = np.zeros(nn_.size, np.uint8)
         out[inside] = levels[vi[inside], ui[inside]]
         return GroundRisk(out.reshape(rows, cols), float(n0), float(e0), float(cell_m))
