@@ -147,7 +147,9 @@ def test_export_is_reproducible_split_by_region_and_readable(tmp_path: Path) -> 
     # data.yaml: plain YAML (ultralytics reads it in the detector e2e test); no `path`, so the folder can move
     lines = (tmp_path / "a" / "data.yaml").read_text().splitlines()
     assert "train: images/train" in lines and "val: images/val" in lines and "names:" in lines
-    assert "  0: 'person'" in lines and "  2: 'car'" in lines and not any(x.startswith("path:") for x in lines)
+    assert (
+        "  0: 'person'" in lines and "  2: 'car'" in lines and not any(x.startswith("path:") for x in lines)
+    )
 
 
 def test_export_cli_and_bad_input(tmp_path: Path) -> None:
