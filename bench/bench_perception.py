@@ -219,7 +219,10 @@ def bench_seg(args: argparse.Namespace) -> str:
     data = _songdo_dataset(args)
     size = (320, 240)
     t = time.perf_counter()
-    model, hist = train_segmenter(data, epochs=args.epochs, size=size, width=16, batch=8, seed=0)
+    model, hist = train_segmenter(
+        data, epochs=args.epochs, size=size, width=16, batch=8, seed=0,
+        progress=lambda k, loss: print(f"step {k} loss {loss:.3f} {time.perf_counter() - t:.0f} s", flush=True),
+    )  # fmt: skip
     train_s = time.perf_counter() - t
     seg = Segmenter(model, size, (640, 480))
     val = load_split(data, "val", size)
