@@ -200,6 +200,13 @@ def build_parser() -> argparse.ArgumentParser:
     footage.add_argument("rest", nargs=argparse.REMAINDER)
     trials = sub.add_parser("trials", help="landing trials: run | compare | show | scenarios", add_help=False)
     trials.add_argument("rest", nargs=argparse.REMAINDER)
+    # perception (issue 9): own parsers in viva_sitl/perception/cli.py, dispatched in main()
+    sub.add_parser("dataset", help="labelled VAC datasets: export", add_help=False)
+    sub.add_parser(
+        "perception",
+        help="train perception models: train-sr | train-segmenter | train-detector",
+        add_help=False,
+    )
     return parser
 
 
@@ -246,6 +253,10 @@ def main(argv: list[str] | None = None) -> int:
         from viva_sitl.evaluation.cli import trials_main
 
         return trials_main(argv[1:])
+    if argv[:1] in (["dataset"], ["perception"]):  # perception extra: own parsers (and --help)
+        from viva_sitl.perception.cli import dataset_main, perception_main
+
+        return (dataset_main if argv[0] == "dataset" else perception_main)(argv[1:])
     parser = build_parser()
     args = parser.parse_args(argv)
     logging.basicConfig(level=args.log_level, format="%(asctime)s %(levelname)s %(name)s: %(message)s")

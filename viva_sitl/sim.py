@@ -24,6 +24,7 @@ import math
 import time
 from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
+from typing import Protocol
 
 import numpy as np
 
@@ -51,6 +52,23 @@ from viva_sitl.geo import GeoOrigin
 # and OpenCV rounds warp coordinates to 1/32 px.
 REGION_MARGIN_PX = 2
 _W_EPS = 1e-9  # as the renderer: homogeneous w at or below this is a ray at or above the horizon
+
+
+class MagnifiedRenderLike(Protocol):
+    """What `Simulator.super_resolution` holds (viva_sitl.perception.MagnifiedRender): kept structural so the core
+    never imports the perception extra."""
+
+    def magnified(self, renderer: Renderer, pos_ned_m: np.ndarray, att_rpy_rad: np.ndarray) -> bool: ...
+
+    def render(
+        self,
+        renderer: Renderer,
+        image0_bgr: np.ndarray,
+        pos_ned_m: np.ndarray,
+        att_rpy_rad: np.ndarray,
+        vel_ned_m_s: np.ndarray | None = None,
+        rng: np.random.Generator | None = None,
+    ) -> RenderResult: ...
 
 
 def _tuple3(a: np.ndarray) -> tuple[float, float, float]:
@@ -114,6 +132,8 @@ class Simulator:
         # --- shared-decode hook (viva_sitl.gym): footage time = sim time + footage_offset_s. Copies of a vector
         # env flying over ONE FootageSource at the same footage time read the same decoded frame. ---
         self.footage_offset_s = 0.0
+        # super-resolution hook (issue 9): a viva_sitl.perception.MagnifiedRender, or None (default: off)
+        self.super_resolution: MagnifiedRenderLike | None = None
         self._prefetcher: ThreadPoolExecutor | None = None
         self._prefetch_job: Future[None] | None = None
         if prefetch and isinstance(self.footage, VideoSource) and self.footage.frame_count > 1:
@@ -354,6 +374,15 @@ class Simulator:
     def _render_image(self, s: EavState) -> tuple[int, RenderResult]:
         if self.footage.geometry.unbounded and isinstance(self.footage, SyntheticField):
             return self._render_ground_view(s)
+        # --- super-resolution hook (issue 9): low flight renders from an upscaled crop of the full frame ---
+        sr = self.super_resolution
+        if sr is not None and sr.magnified(self.renderer, s.pos_ned_m, s.att_rpy_rad):
+            index, pyramid = self.footage_frame(s.time_s + self.footage_offset_s)
+            self.full_renders += 1
+            return index, sr.render(
+                self.renderer, pyramid.level(0), s.pos_ned_m, s.att_rpy_rad, s.vel_ned_m_s, self.camera_rng
+            )
+        # --- end of the super-resolution hook ---
         index = self.footage.frame_index_at(s.time_s + self.footage_offset_s)
         planned = self._region_pyramid(index, s)
         if planned is not None:

@@ -1,0 +1,184 @@
+"""YOLO detection on VAC frames (extra `perception-yolo`: ultralytics + a torchvision matching torch).
+
+    det = Detector("runs/det/train/weights/best.pt")          # any ultralytics detection weights: .pt or .onnx
+    for d in det.detect(frame_bgr): print(d.name, d.confidence, d.box_px)
+    ground = det.on_ground(dets, meta=frame_meta)               # (k, 2) north/east of each box centre
+    best, metrics = train_detector("data/songdo/data.yaml", epochs=30, imgsz=640)   # ultralytics' own trainer
+
+Weights cannot be downloaded on machines without internet: `train_detector` starts from an architecture file
+(`yolov8n.yaml` by default, randomly initialised) unless given weights. YOLO_OFFLINE=1 is set before ultralytics is
+imported so it never tries to reach the network.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from viva_sitl.camera import CameraParams
+from viva_sitl.camera.projection import ground_to_image_homography
+from viva_sitl.perception.errors import INSTALL_HINT_YOLO, PerceptionError
+from viva_sitl.perception.geometry import ground_homography_from_meta, image_to_ground
+
+U8 = NDArray[np.uint8]
+WEIGHT_SUFFIXES = (".pt", ".onnx")
+
+
+def require_ultralytics() -> Any:
+    """The ultralytics YOLO class, or PerceptionError naming the extra."""
+    os.environ.setdefault("YOLO_OFFLINE", "1")
+    os.environ.setdefault("YOLO_VERBOSE", "False")
+    try:
+        from ultralytics import YOLO
+    except ImportError as exc:
+        raise PerceptionError(
+            f"the detector needs ultralytics with a matching torchvision ({exc.name or exc} is missing): "
+            f"{INSTALL_HINT_YOLO}"
+        ) from None
+    return YOLO
+
+
+@dataclass(frozen=True)
+class Detection:
+    class_id: int
+    name: str
+    confidence: float
+    box_px: tuple[float, float, float, float]  # x0, y0, x1, y1 (pixel edges)
+
+    @property
+    def centre_px(self) -> tuple[float, float]:
+        x0, y0, x1, y1 = self.box_px
+        return (x0 + x1) / 2.0, (y0 + y1) / 2.0
+
+
+class Detector:
+    """An ultralytics YOLO detection model run on BGR frames (CPU unless `device` says otherwise)."""
+
+    def __init__(
+        self,
+        weights: str | Path,
+        conf: float = 0.25,
+        iou: float = 0.45,
+        imgsz: int = 640,
+        device: str = "cpu",
+    ) -> None:
+        path = Path(weights)
+        if not path.is_file():
+            raise PerceptionError(
+                f"detector weights not found: {path} (train them with `viva-sitl perception train-detector`)"
+            )
+        if path.suffix.lower() not in WEIGHT_SUFFIXES:
+            raise PerceptionError(
+                f"detector weights {path} must be a .pt or .onnx file, got {path.suffix or 'none'}"
+            )
+        yolo = require_ultralytics()
+        try:
+            self.model = yolo(str(path), task="detect")
+        except Exception as exc:  # ultralytics raises many types for a foreign file
+            msg = str(exc).strip().splitlines()[0][:160] if str(exc).strip() else type(exc).__name__
+            raise PerceptionError(f"{path} is not an ultralytics YOLO model: {msg}") from None
+        task = getattr(self.model, "task", "detect")
+        if task != "detect":
+            raise PerceptionError(f"{path} is a YOLO {task} model, not a detection model")
+        self.path, self.conf, self.iou, self.imgsz, self.device = path, conf, iou, imgsz, device
+
+    @property
+    def names(self) -> dict[int, str]:
+        return dict(getattr(self.model, "names", {}) or {})
+
+    def detect(self, image_bgr: U8) -> list[Detection]:
+        img = np.asarray(image_bgr)
+        if img.dtype != np.uint8 or img.ndim != 3 or img.shape[2] != 3:
+            raise PerceptionError(f"frame must be an HxWx3 uint8 BGR image, got {img.dtype} {img.shape}")
+        res = self.model.predict(img, imgsz=self.imgsz, conf=self.conf, iou=self.iou, device=self.device,
+                                 verbose=False)[0]  # fmt: skip
+        names = res.names or {}
+        boxes = res.boxes
+        xyxy = boxes.xyxy.cpu().numpy() if boxes is not None else np.zeros((0, 4))
+        cls = boxes.cls.cpu().numpy().astype(int) if boxes is not None else np.zeros(0, int)
+        confs = boxes.conf.cpu().numpy() if boxes is not None else np.zeros(0)
+        return [
+            Detection(
+                int(c),
+                str(names.get(int(c), c)),
+                float(p),
+                (float(b[0]), float(b[1]), float(b[2]), float(b[3])),
+            )
+            for b, c, p in zip(xyxy, cls, confs, strict=True)
+        ]
+
+    @staticmethod
+    def on_ground(
+        detections: list[Detection],
+        pos_ned_m: ArrayLike | None = None,
+        att_rpy_rad: ArrayLike | None = None,
+        params: CameraParams | None = None,
+        meta: Any = None,
+    ) -> NDArray[np.float64]:
+        """(k, 2) north/east of each detection's box centre on the ground (NaN above the horizon), through the
+        frame's pose: (pos_ned_m, att_rpy_rad, params) or `meta` (a FrameMeta from the frame-and-pose socket)."""
+        if meta is not None:
+            h = ground_homography_from_meta(meta)
+        elif pos_ned_m is not None and att_rpy_rad is not None and params is not None:
+            h = ground_to_image_homography(pos_ned_m, att_rpy_rad, params)
+        else:
+            raise PerceptionError(
+                "on_ground needs the frame's pose: meta=FrameMeta, or pos_ned_m, att_rpy_rad, params"
+            )
+        if not detections:
+            return np.zeros((0, 2))
+        px = np.array([d.centre_px for d in detections]) - 0.5  # box edges -> pixel-centre coordinates
+        return image_to_ground(h, px)
+
+
+def train_detector(
+    data_yaml: str | Path,
+    epochs: int = 30,
+    imgsz: int = 640,
+    model: str = "yolov8n.yaml",
+    batch: int = 8,
+    out_dir: str | Path = "runs/detector",
+    seed: int = 0,
+    fraction: float = 1.0,
+) -> tuple[Path, dict[str, float]]:
+    """ultralytics' trainer on an exported dataset; returns (best weights, {map50, map50_95, precision, recall})."""
+    data = Path(data_yaml)
+    if data.is_dir():
+        data = data / "data.yaml"
+    if not data.is_file():
+        raise PerceptionError(
+            f"dataset description not found: {data} (export one with `viva-sitl dataset export`)"
+        )
+    yolo = require_ultralytics()
+    if model.endswith(".pt") and not Path(model).is_file():
+        raise PerceptionError(
+            f"starting weights not found: {model} (offline: start from an architecture .yaml)"
+        )
+    try:
+        net = yolo(model, task="detect")
+    except Exception as exc:
+        raise PerceptionError(
+            f"cannot build the detector from {model}: {str(exc).splitlines()[0][:160]}"
+        ) from None
+    out = Path(out_dir).resolve()
+    net.train(
+        data=str(data.resolve()), epochs=epochs, imgsz=imgsz, batch=batch, device="cpu", workers=0, seed=seed,
+        project=str(out), name="train", exist_ok=True, plots=False, amp=False, verbose=False, fraction=fraction,
+        pretrained=False,
+    )  # fmt: skip
+    best = out / "train" / "weights" / "best.pt"
+    if not best.is_file():
+        best = out / "train" / "weights" / "last.pt"
+    m = getattr(getattr(net, "trainer", None), "metrics", {}) or {}
+    metrics = {
+        "map50": float(m.get("metrics/mAP50(B)", float("nan"))),
+        "map50_95": float(m.get("metrics/mAP50-95(B)", float("nan"))),
+        "precision": float(m.get("metrics/precision(B)", float("nan"))),
+        "recall": float(m.get("metrics/recall(B)", float("nan"))),
+    }
+    return best, metrics

@@ -1,0 +1,21 @@
+"""Errors of the perception extra: one line naming what is missing and how to fix it."""
+
+from __future__ import annotations
+
+from types import ModuleType
+
+INSTALL_HINT = "pip install 'viva-sitl[perception]'"
+INSTALL_HINT_YOLO = "pip install 'viva-sitl[perception-yolo]'"
+
+
+class PerceptionError(ValueError):
+    """Bad input to the perception code (missing weights, wrong model type, wrong frame size, missing extra)."""
+
+
+def require_torch() -> ModuleType:
+    """The torch module, or PerceptionError naming the extra to install."""
+    try:
+        import torch
+    except ImportError:
+        raise PerceptionError(f"this needs PyTorch, which is not installed: {INSTALL_HINT}") from None
+    return torch
