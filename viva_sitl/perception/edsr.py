@@ -59,9 +59,11 @@ class EDSR(nn.Module):
         up: list[nn.Module] = []
         for s in [2, 2] if scale == 4 else [scale]:
             up += [nn.Conv2d(n_feats, n_feats * s * s, 3, padding=1), nn.PixelShuffle(s)]
-        self.tail = nn.Sequential(*up, nn.Conv2d(n_feats, 3, 3, padding=1))
-        nn.init.zeros_(self.tail[-1].weight)  # starts as exactly bicubic
-        nn.init.zeros_(self.tail[-1].bias)
+        last = nn.Conv2d(n_feats, 3, 3, padding=1)
+        nn.init.zeros_(last.weight)  # starts as exactly bicubic
+        assert last.bias is not None
+        nn.init.zeros_(last.bias)
+        self.tail = nn.Sequential(*up, last)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         base = nn.functional.interpolate(x, scale_factor=self.scale, mode="bicubic", align_corners=False)
