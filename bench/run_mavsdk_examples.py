@@ -4,7 +4,7 @@
     python bench/run_mavsdk_examples.py ... --only goto do_orbit --out bench/results_mavsdk_examples.md
 
 The examples (mavlink/MAVSDK-Python `examples/`, classic gRPC API) are not part of this repository: fetch them and
-give their directory; `--python` is a virtual environment with `pip install 'mavsdk==3.*'` (which ships
+give their directory; `--python` is a virtual environment with `pip install 'mavsdk==3.*' anyio tqdm` (mavsdk ships
 mavsdk_server). Each example gets a fresh `viva-sitl run` (synthetic field, PX4's default home, the default
 airframe, video on) on PX4's default API port 14540, so the example's own connection string works; when 14540 is
 taken, `--instance N` moves viva-sitl to 14540+N and the example runs from a temporary copy whose connection
