@@ -136,10 +136,14 @@ def test_bad_fences_are_refused_with_px4_codes(client: MavClient, vehicle: Vehic
     assert _upload(client, wrong_count, FENCE) == M.MAV_MISSION_INVALID_PARAM1
     bad_lat = [(*good[0][:6], 95 * 10**7, good[0][7], 0.0), *good[1:]]
     assert _upload(client, bad_lat, FENCE) == M.MAV_MISSION_INVALID_PARAM5_X
-    zero_circle = [
-        (M.MAV_FRAME_GLOBAL_INT, M.MAV_CMD_NAV_FENCE_CIRCLE_INCLUSION, 0.0, 0, 0, 0, *_ll(0, 0), 0.0)
+    negative_circle = [
+        (M.MAV_FRAME_GLOBAL_INT, M.MAV_CMD_NAV_FENCE_CIRCLE_INCLUSION, -5.0, 0, 0, 0, *_ll(0, 0), 0.0)
     ]
-    assert _upload(client, zero_circle, FENCE) == M.MAV_MISSION_INVALID_PARAM1
+    assert _upload(client, negative_circle, FENCE) == M.MAV_MISSION_INVALID_PARAM1
+    nan_circle = [
+        (M.MAV_FRAME_GLOBAL_INT, M.MAV_CMD_NAV_FENCE_CIRCLE_INCLUSION, NAN, 0, 0, 0, *_ll(0, 0), 0.0)
+    ]
+    assert _upload(client, nan_circle, FENCE) == M.MAV_MISSION_INVALID_PARAM1
     waypoint_in_fence = [(M.MAV_FRAME_GLOBAL_INT, M.MAV_CMD_NAV_WAYPOINT, 0, 0, 0, 0, *_ll(0, 0), 0.0)]
     assert _upload(client, waypoint_in_fence, FENCE) == M.MAV_MISSION_UNSUPPORTED
     ap = vehicle.vehicle.autopilot  # type: ignore[union-attr]
@@ -152,6 +156,29 @@ def test_bad_fences_are_refused_with_px4_codes(client: MavClient, vehicle: Vehic
     rally = [(M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, M.MAV_CMD_NAV_RALLY_POINT, 0, 0, 0, 0, *_ll(80, 0), 10.0)]
     assert _upload(client, rally, RALLY) == M.MAV_MISSION_ACCEPTED
     assert _text(client, "Rally point 0 is outside the geofence")
+
+
+def test_zero_radius_circle_at_lat_lon_zero_is_stored_and_contains_nothing(
+    client: MavClient, vehicle: VehicleThread
+) -> None:
+    """MAVSDK's geofence plugin (its geofence.py example) sends a polygon plus an inclusion circle of radius 0 at
+    lat/lon 0/0 as "no circle": PX4 accepts and stores it, and it contains no point (the polygon alone decides)."""
+    placeholder = (M.MAV_FRAME_GLOBAL_INT, M.MAV_CMD_NAV_FENCE_CIRCLE_INCLUSION, 0.0, 0, 0, 0, 0, 0, 0.0)
+    assert _upload(client, [*_polygon(SQUARE), placeholder], FENCE) == M.MAV_MISSION_ACCEPTED
+    ap = vehicle.vehicle.autopilot  # type: ignore[union-attr]
+    fence = vehicle.call(lambda: ap.geofence)
+    assert len(fence.polygons) == 1 and len(fence.circles) == 1
+    assert fence.contains(0.0, 0.0) and not fence.contains(40.0, 0.0)
+    down = _download(client, FENCE)
+    assert [d[0] for d in down][-1] == M.MAV_CMD_NAV_FENCE_CIRCLE_INCLUSION and down[-1][2:] == (0.0, 0, 0)
+    # the stored fence does not refuse a mission inside the polygon, and arming at home is allowed
+    inside = [(M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, M.MAV_CMD_NAV_WAYPOINT, 0, 0, 0, NAN, *_ll(10, 10), 5.0)]
+    assert _upload(client, inside, MISSION) == M.MAV_MISSION_ACCEPTED
+    ack = client.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1)
+    assert ack is not None and ack.result == M.MAV_RESULT_ACCEPTED
+    # alone, the zero circle is an inclusion area nothing is inside (PX4): a mission point is then outside the fence
+    assert _upload(client, [placeholder], FENCE) == M.MAV_MISSION_ACCEPTED
+    assert _upload(client, inside, MISSION) == M.MAV_MISSION_DENIED
 
 
 def _fly_to(client: MavClient, alt_m: float = 6.0) -> None:

@@ -472,3 +472,19 @@ def test_takeoff_amsl_altitude_then_reposition_command_int(
         12.0,
     )
     assert lp is not None, "did not reach the DO_REPOSITION target (8, -4, -4)"
+
+
+def test_highres_imu_on_request_as_mavsdk_set_rate_imu(client: MavClient, vehicle: VehicleThread) -> None:
+    """MAVSDK's telemetry.set_rate_imu (its highres_imu example) sends SET_MESSAGE_INTERVAL(HIGHRES_IMU): PX4 streams
+    it; a vehicle at rest on the ground reads -g on the accelerometer's z, no rotation, ISA pressure at home."""
+    client.poll(0.3)
+    assert _rate(client, "HIGHRES_IMU", 0.5) == 0.0  # not in the default streams
+    ack = client.command(M.MAV_CMD_SET_MESSAGE_INTERVAL, M.MAVLINK_MSG_ID_HIGHRES_IMU, 20_000)
+    assert ack is not None and ack.result == M.MAV_RESULT_ACCEPTED
+    assert _rate(client, "HIGHRES_IMU", 1.5) == pytest.approx(50.0, rel=0.3)
+    imu = [m for _, m in client.received if m.get_type() == "HIGHRES_IMU"][-1]
+    assert imu.zacc == pytest.approx(-9.81, abs=0.1) and abs(imu.xacc) < 0.1 and abs(imu.yacc) < 0.1
+    assert max(abs(imu.xgyro), abs(imu.ygyro), abs(imu.zgyro)) < 0.01
+    assert 0.3 < math.sqrt(imu.xmag**2 + imu.ymag**2 + imu.zmag**2) < 0.6  # gauss
+    assert imu.abs_pressure == pytest.approx(955.5, abs=2.0)  # hPa at PX4's default home, 488 m AMSL
+    assert imu.fields_updated == 0x1FFF

@@ -58,6 +58,8 @@ class CircleFence:
     inclusion: bool = True
 
     def contains(self, north_m: float, east_m: float) -> bool:
+        if self.radius_m <= 0.0:  # PX4: a zero-radius circle contains nothing
+            return False
         dn, de = north_m - self.center_ne_m[0], east_m - self.center_ne_m[1]
         return dn * dn + de * de <= self.radius_m * self.radius_m
 
@@ -168,8 +170,10 @@ def validate_polygon(vertices: Sequence[PointNE], index: int = 0) -> None:
 def validate_circle(center_ne_m: PointNE, radius_m: float, index: int = 0) -> None:
     if not (math.isfinite(center_ne_m[0]) and math.isfinite(center_ne_m[1])):
         raise ValueError(f"Geofence rejected: circle {index} centre is not finite")
-    if not (math.isfinite(radius_m) and 0.0 < radius_m <= MAX_ABS_POS_M):
-        raise ValueError(f"Geofence rejected: circle {index} radius {radius_m} m must be > 0")
+    # PX4 stores a zero-radius circle (MAVSDK's geofence plugin sends one, at lat/lon 0/0, as "no circle"): it
+    # contains no point, so next to a polygon it changes nothing.
+    if not (math.isfinite(radius_m) and 0.0 <= radius_m <= MAX_ABS_POS_M):
+        raise ValueError(f"Geofence rejected: circle {index} radius {radius_m} m must be >= 0")
 
 
 # --- breach evaluation ------------------------------------------------------------------------------

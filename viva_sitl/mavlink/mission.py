@@ -15,7 +15,8 @@ Altitudes above home (GLOBAL_RELATIVE_ALT frames) are resolved against home when
 The three plan types are stored separately (MISSION, FENCE, RALLY), each with its own upload, download and clear;
 MISSION_CLEAR_ALL with MAV_MISSION_TYPE_ALL clears all three. FENCE: NAV_FENCE_POLYGON_VERTEX_INCLUSION/EXCLUSION
 (param1 = vertex count, repeated on every vertex of one polygon), NAV_FENCE_CIRCLE_INCLUSION/EXCLUSION (param1 =
-radius) and NAV_FENCE_RETURN_POINT; a bad polygon (vertex count wrong or < 3, self-intersecting, non-finite) is
+radius; 0 is stored and contains no point, as PX4 stores MAVSDK's "no circle" placeholder at lat/lon 0/0) and
+NAV_FENCE_RETURN_POINT; a bad polygon (vertex count wrong or < 3, self-intersecting, non-finite) is
 refused with a MAV_MISSION_* code and a STATUSTEXT. RALLY: NAV_RALLY_POINT; a rally point outside the fence is
 accepted with a warning (PX4 does not check them). DO items PX4 would not know are refused (UNSUPPORTED); any other
 MAV_CMD that is not a NAV command is accepted, logged and skipped when the mission runs.
@@ -242,6 +243,9 @@ def wire_to_fence(items: list[WireItem], vehicle: VehicleLink) -> Geofence:
             continue
         if w.command in _CIRCLE:
             north, east, _ = _position(w, vehicle, "Geofence item", need_alt=False)
+            if w.frame in _GLOBAL and w.x == 0 and w.y == 0:
+                # lat/lon 0/0 is a real place for a fence circle (MAVSDK's "no circle" placeholder sits there).
+                north, east, _ = vehicle.geo.global_to_ned(0.0, 0.0, vehicle.geo.alt_amsl_m)
             try:
                 validate_circle((north, east), w.param1, len(circles))
             except ValueError as exc:

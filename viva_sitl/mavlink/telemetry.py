@@ -232,6 +232,7 @@ class TelemetryBuilder:
             M.MAVLINK_MSG_ID_ALTITUDE: self.altitude,
             M.MAVLINK_MSG_ID_AUTOPILOT_VERSION: self.autopilot_version,
             M.MAVLINK_MSG_ID_ORBIT_EXECUTION_STATUS: self.orbit_execution_status,
+            M.MAVLINK_MSG_ID_HIGHRES_IMU: self.highres_imu,  # on request (MAVSDK set_rate_imu), as PX4
         }
 
     # --- snapshot ---------------------------------------------------------------------------
@@ -340,6 +341,48 @@ class TelemetryBuilder:
 
     def system_time(self) -> MavMessage:
         return M.MAVLink_system_time_message(int(time.time() * 1e6), time_boot_ms(self.vehicle))
+
+    def highres_imu(self) -> MavMessage:
+        """HIGHRES_IMU, FRD body frame, from the ideal sensors: the accelerometer reads the thrust's specific force
+        (-thrust/mass on z; drag neglected), or -g rotated into the body on the ground; the gyro the body rates; the
+        magnetometer a fixed NED field (PX4 SITL's default location, gauss); ISA pressure and temperature."""
+        s = self.snapshot()
+        ap = self.vehicle.autopilot
+        eav_params = getattr(ap, "eav_params", None)
+        params = eav_params() if callable(eav_params) else ap.eav
+        mass_kg = float(getattr(params, "mass_kg", 0.0)) or 1.0
+        g = float(getattr(params, "gravity_m_s2", 9.80665))
+        roll, pitch, yaw = s.rpy_rad
+        sr, cr, sp, cp = math.sin(roll), math.cos(roll), math.sin(pitch), math.cos(pitch)
+        sy, cy = math.sin(yaw), math.cos(yaw)
+
+        def to_body(n: float, e: float, d: float) -> tuple[float, float, float]:  # R^T (ZYX) applied to NED
+            return (
+                cp * cy * n + cp * sy * e - sp * d,
+                (sr * sp * cy - cr * sy) * n + (sr * sp * sy + cr * cy) * e + sr * cp * d,
+                (cr * sp * cy + sr * sy) * n + (cr * sp * sy - sr * cy) * e + cr * cp * d,
+            )
+
+        lifted = s.thrust_n / mass_kg
+        if ap.landed_state == LandedState.ON_GROUND and lifted < g:
+            acc = to_body(0.0, 0.0, -g)
+        else:
+            acc = (0.0, 0.0, -lifted)
+        mag = to_body(0.21, 0.01, 0.42)
+        alt = s.alt_amsl_m
+        pressure_hpa = 1013.25 * max(1.0 - 2.25577e-5 * alt, 1e-6) ** 5.25588
+        return M.MAVLink_highres_imu_message(
+            time_boot_us(self.vehicle),
+            *(_f(v) for v in acc),
+            *s.body_rates_rad_s,
+            *(_f(v) for v in mag),
+            _f(pressure_hpa),
+            0.0,
+            _f(alt),
+            _f(15.0 - 0.0065 * alt),
+            0x1FFF,
+            0,
+        )
 
     def attitude(self) -> MavMessage:
         s = self.snapshot()
