@@ -321,7 +321,35 @@ def export_dataset(
     progress: Callable[[int, int], None] | None = None,
     shared_dir: Path | None = None,
 ) -> dict[str, int]:
-    """Write the dataset; returns counts {train_images, val_images, boxes}. PerceptionError / FootageError on bad input."""
+    """Write the dataset; returns counts {train_images, val_images, boxes}. PerceptionError / FootageError on bad input.
+
+    All or nothing: the dataset is built in `<out_dir>.part` and renamed into place at the end, so bad input, an
+    error or Ctrl-C half-way leaves no half-written dataset behind."""
+    import shutil
+
+    spec.check()
+    out_dir = Path(out_dir)
+    if out_dir.exists() and any(out_dir.iterdir()):
+        raise PerceptionError(f"output directory {out_dir} is not empty (choose a new -o)")
+    part = out_dir.with_name(out_dir.name + ".part")
+    shutil.rmtree(part, ignore_errors=True)
+    try:
+        counts = _export_into(spec, part, progress, shared_dir)
+        if out_dir.exists():
+            out_dir.rmdir()  # empty (checked above)
+        part.rename(out_dir)
+    except BaseException:
+        shutil.rmtree(part, ignore_errors=True)
+        raise
+    return counts
+
+
+def _export_into(
+    spec: ExportSpec,
+    out_dir: Path,
+    progress: Callable[[int, int], None] | None,
+    shared_dir: Path | None,
+) -> dict[str, int]:
     import dataclasses
 
     from viva_sitl.dynamics import EavState
@@ -329,10 +357,6 @@ def export_dataset(
     from viva_sitl.sim import Simulator
     from viva_sitl.world import ObjectClass, world_from_source
 
-    spec.check()
-    out_dir = Path(out_dir)
-    if out_dir.exists() and any(out_dir.iterdir()):
-        raise PerceptionError(f"output directory {out_dir} is not empty (choose a new -o)")
     params = CameraParams(width_px=spec.width_px, height_px=spec.height_px)
     counts = {"train_images": 0, "val_images": 0, "boxes": 0}
     for split in ("train", "val"):
