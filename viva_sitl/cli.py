@@ -198,7 +198,9 @@ def build_parser() -> argparse.ArgumentParser:
         add_help=False,
     )
     footage.add_argument("rest", nargs=argparse.REMAINDER)
-    trials = sub.add_parser("trials", help="landing trials: run | compare | show | scenarios", add_help=False)
+    trials = sub.add_parser(
+        "trials", help="landing trials: run | fly | compare | show | scenarios", add_help=False
+    )
     trials.add_argument("rest", nargs=argparse.REMAINDER)
     # perception (issue 9): own parsers in viva_sitl/perception/cli.py, dispatched in main()
     sub.add_parser("dataset", help="labelled VAC datasets: export", add_help=False)

@@ -1,4 +1,4 @@
-"""`viva-sitl trials run | compare | show | scenarios`."""
+"""`viva-sitl trials run | fly | compare | show | scenarios`."""
 
 from __future__ import annotations
 
@@ -54,6 +54,34 @@ def build_parser() -> argparse.ArgumentParser:
     )
     r.add_argument("--video", action="store_true", help="also record each trial's VAC video (vac.mp4)")
     r.add_argument("--no-progress", action="store_true", help="no progress bar")
+    from viva_sitl.cli import _port
+    from viva_sitl.cliargs import positive_float
+    from viva_sitl.evaluation.human import MAVSDK_API_PORT, QGC_GCS_PORT, QGC_VIDEO_PORT
+
+    f = sub.add_parser(
+        "fly",
+        help="fly trial K yourself (dashboard page, keys, gamepad or QGroundControl), scored like a program",
+    )
+    f.add_argument("spec", help="trial spec (TOML), e.g. configs/trials/synthetic_emergency.toml")
+    f.add_argument(
+        "--trial", type=_nonneg_int, required=True, help="the scenario to fly (as trials run --trial K)"
+    )
+    f.add_argument("--n", type=_pos_int, help="number of trials of the spec (default: the spec's trials.n)")
+    f.add_argument("--seed", type=_nonneg_int, help="scenario seed (default: the spec's trials.seed)")
+    f.add_argument("-o", "--out", help="output directory (default: trials-out/<spec name>-<name>-trial-K)")
+    f.add_argument(
+        "--speed", type=positive_float, default=1.0, help="sim seconds per wall second (default 1)"
+    )
+    f.add_argument("--name", default="human", help="the pilot's name in the results (default: human)")
+    f.add_argument(
+        "--dashboard-port", type=_port, help="dashboard port (default 8080; when busy a free port)"
+    )
+    f.add_argument("--api-port", type=_port, default=MAVSDK_API_PORT,
+                   help=f"remote API port the vehicle sends to (default {MAVSDK_API_PORT}, MAVSDK's)")  # fmt: skip
+    f.add_argument("--gcs-port", type=_port, default=QGC_GCS_PORT,
+                   help=f"remote ground-station port (default {QGC_GCS_PORT}: QGroundControl connects by itself)")  # fmt: skip
+    f.add_argument("--video-port", type=_port, default=QGC_VIDEO_PORT,
+                   help=f"UDP port of the H.264 RTP video (default {QGC_VIDEO_PORT}: QGroundControl shows it)")  # fmt: skip
     c = sub.add_parser("compare", help="paired statistics of two runs over the same scenarios")
     c.add_argument("a", help="OUT_DIR of run A")
     c.add_argument("b", help="OUT_DIR of run B")
@@ -95,6 +123,8 @@ def trials_main(argv: list[str]) -> int:
     try:
         if args.cmd == "run":
             return _run(args)
+        if args.cmd == "fly":
+            return _fly(args)
         if args.cmd == "compare":
             return _compare(args)
         if args.cmd == "show":
@@ -141,6 +171,34 @@ def _run(args: argparse.Namespace) -> int:
     return 0 if camp.complete else 1
 
 
+def _fly(args: argparse.Namespace) -> int:
+    from viva_sitl.evaluation.human import fly_trial
+    from viva_sitl.evaluation.spec import load_spec
+
+    spec = load_spec(args.spec)
+    safe = "".join(ch if ch.isalnum() or ch in "-_" else "_" for ch in args.name)[:40]
+    out = Path(args.out) if args.out else Path("trials-out") / f"{spec.name}-{safe}-trial-{args.trial}"
+    try:
+        row = fly_trial(
+            spec, args.trial, out, n=args.n, seed=args.seed, speed=args.speed, pilot=args.name,
+            dashboard_port=args.dashboard_port, api_port=args.api_port, gcs_port=args.gcs_port,
+            video_port=args.video_port, say=lambda line: print(line, flush=True),
+        )  # fmt: skip
+    except KeyboardInterrupt:  # outside the flight itself (drawing the scenario, writing the report)
+        print(f"\ninterrupted: what was written is in {out}", file=sys.stderr)
+        return 130
+    td = (f"touchdown N{row['touchdown_north_m']:.1f} E{row['touchdown_east_m']:.1f} at "
+          f"{row['touchdown_speed_m_s']:.2f} m/s" if row["touchdown_north_m"] is not None else "no touchdown")  # fmt: skip
+    print(f"trial {row['trial']} [{args.name}]: {row['end']} ({row['end_detail']}); {td}; success {row['success']}"
+          f"{' (' + row['criterion_failures'] + ')' if row['criterion_failures'] else ''}", flush=True)  # fmt: skip
+    tdir = out / "trials" / f"{row['trial']:04d}"
+    print(
+        f"  results: {out / 'results.json'}, {out / 'results.csv'}  replay: viva-sitl replay {tdir}",
+        flush=True,
+    )
+    return 130 if row["end"] == "aborted" else 0
+
+
 def _compare(args: argparse.Namespace) -> int:
     from viva_sitl.evaluation.report import compare_docs, read_results
 
@@ -151,6 +209,8 @@ def _compare(args: argparse.Namespace) -> int:
     s = res["success"]
     print(f"A = {res['a']['pilot']} ({args.a}), B = {res['b']['pilot']} ({args.b}): {res['pairs']} paired trials, "
           f"same scenarios: {res['same_scenarios']}")  # fmt: skip
+    if res["unmatched_a"] or res["unmatched_b"]:
+        print(f"  unpaired: {res['unmatched_a']} trials only in A, {res['unmatched_b']} only in B (left out)")
     if not res["same_scenarios"]:
         print(
             "  WARNING: the runs were drawn from different scenarios: pairs match by trial index and seed only"

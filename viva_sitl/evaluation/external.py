@@ -41,6 +41,7 @@ import subprocess
 import sys
 import threading
 import time
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import IO, Any
 
@@ -128,29 +129,47 @@ def pilot_command(template: str, values: dict[str, str]) -> list[str]:
 def run_external_trial(
     spec: TrialSpec,
     scenario: Scenario,
-    command: str,
+    command: str | None,
     trial_dir: Path,
     *,
     slot: int = 0,
     video: bool = False,
     wall_limit_s: float | None = None,
     frames: bool = False,
+    api_port: int | None = None,
+    gcs_port: int | None = None,
+    video_port: int | None = None,
+    sitl_args: Sequence[str] = (),
+    on_ready: Callable[[str], None] | None = None,
+    abort_on_interrupt: bool = False,
 ) -> dict[str, Any]:
+    """Fly one trial against its own `viva-sitl run --scenario`; return the scored row.
+
+    command None: no pilot program: a person flies it (the dashboard page, QGroundControl, a gamepad: `trials
+    fly`). api_port / gcs_port / video_port: where the vehicle sends its MAVLink and H.264 RTP (default: free
+    ports). sitl_args: more
+    `viva-sitl run` options. on_ready: called with `viva-sitl run`'s ready line. abort_on_interrupt (main thread
+    only): Ctrl-C / SIGTERM end the trial as "aborted" (the vehicle process writes its logs, the row is scored)
+    instead of raising; a second Ctrl-C does not cut the cleanup short."""
     wall0 = time.perf_counter()
     trial_dir.mkdir(parents=True, exist_ok=True)
     limits = limits_of(spec)
     scen_path = trial_dir / "scenario.json"
     write_scenario_file(scen_path, scenario, limits)
-    api, gcs, api_local, gcs_local, video_port = free_ports(socket.SOCK_DGRAM, 5)
+    api, gcs, api_local, gcs_local, rtp = free_ports(socket.SOCK_DGRAM, 5)
+    api = api if api_port is None else api_port
+    gcs = gcs if gcs_port is None else gcs_port
+    rtp = rtp if video_port is None else video_port
     frame_port, grpc_port = free_ports(socket.SOCK_STREAM, 2)
     frame_url = f"tcp://127.0.0.1:{frame_port}"
     instance = slot % 250
     sitl_cmd = [
         sys.executable, "-m", "viva_sitl", "--log-level", "WARNING", "run", "--scenario", str(scen_path),
         "--instance", str(instance), "--speed", f"{spec.speed:g}", "--api-port", str(api), "--gcs-port", str(gcs),
-        "--api-local-port", str(api_local), "--gcs-local-port", str(gcs_local), "--video-port", str(video_port),
+        "--api-local-port", str(api_local), "--gcs-local-port", str(gcs_local), "--video-port", str(rtp),
         "--frame-socket", frame_url, "--run-dir", str(trial_dir),
     ]  # fmt: skip
+    sitl_cmd += list(sitl_args)
     if video:
         sitl_cmd += ["--record", str(trial_dir / "vac.mp4")]
     elif not frames:
@@ -161,7 +180,7 @@ def run_external_trial(
         "trial_dir": str(trial_dir.resolve()), "instance": str(instance), "speed": f"{spec.speed:g}",
         "grpc_port": str(grpc_port), "python": sys.executable,
     }  # fmt: skip
-    pcmd = pilot_command(command, values)
+    pcmd = pilot_command(command, values) if command is not None else None
     env = dict(os.environ)
     env.update({f"VIVA_SITL_{k.upper()}": v for k, v in values.items() if k != "python"})
     env["PYTHONUNBUFFERED"] = "1"
@@ -170,7 +189,13 @@ def run_external_trial(
     pilot: subprocess.Popen[str] | None = None
     end_override: tuple[str, str] | None = None
     pilot_note = ""
-    with (trial_dir / "sitl.log").open("w") as slog, (trial_dir / "pilot.log").open("w") as plog:
+    aborted = threading.Event()
+    old_handlers: dict[int, Any] = {}
+    if abort_on_interrupt:
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            old_handlers[sig] = signal.signal(sig, lambda *_: aborted.set())
+    plog_path = trial_dir / "pilot.log" if pcmd is not None else Path(os.devnull)
+    with (trial_dir / "sitl.log").open("w") as slog, plog_path.open("w") as plog:
         try:
             sitl = _start(sitl_cmd, slog)
             spump = _Pump(sitl, slog, (READY_PREFIX, TRIAL_PREFIX))
@@ -179,22 +204,30 @@ def run_external_trial(
             while READY_PREFIX not in spump.hits:
                 if sitl.poll() is not None and not spump.is_alive():
                     break
-                if time.monotonic() - t_start > START_TIMEOUT_S:
+                if time.monotonic() - t_start > START_TIMEOUT_S or aborted.is_set():
                     break
                 spump.event.wait(0.2)
                 spump.event.clear()
-            if READY_PREFIX not in spump.hits:
+            if aborted.is_set():
+                end_override = ("aborted", "stopped by the user before the trial started")
+            elif READY_PREFIX not in spump.hits:
                 tail = " | ".join(spump.tail[-3:])
                 end_override = ("sitl_error", f"viva-sitl run did not start: {tail}"[:400])
             else:
+                if on_ready is not None:
+                    on_ready(spump.hits[READY_PREFIX].rstrip())
                 try:
-                    pilot = _start(pcmd, plog, env=env)
+                    pilot = _start(pcmd, plog, env=env) if pcmd is not None else None
                 except OSError as exc:
+                    assert pcmd is not None
                     end_override = ("pilot_error", f"cannot start the pilot {pcmd[0]!r}: {exc}")
                 if pilot is not None:
                     ppump = _Pump(pilot, plog, ())
                     ppump.start()
                 while end_override is None and sitl.poll() is None and TRIAL_PREFIX not in spump.hits:
+                    if aborted.is_set():
+                        end_override = ("aborted", "stopped by the user (Ctrl-C) before the trial ended")
+                        break
                     if time.perf_counter() - wall0 > limit:
                         end_override = ("wall_timeout", f"trial took more than {limit:g} s of wall time")
                         break
@@ -218,12 +251,22 @@ def run_external_trial(
                 stop_group(pilot)  # and its process group (e.g. a mavsdk_server the script started)
             if sitl is not None:
                 stop_group(sitl, grace_s=5.0)
+            for signum, handler in old_handlers.items():
+                signal.signal(signum, handler)
     try:
         log = TrialLog.read(trial_dir)
     except (FileNotFoundError, ValueError, KeyError) as exc:
         log = TrialLog(end="sitl_error", end_detail=f"no trial log from viva-sitl run: {exc}")
-    if end_override is not None and (log.end in (None, "sitl_stopped") or end_override[0] == "sitl_error"):
+    if end_override is not None and (
+        log.end in (None, "sitl_stopped")
+        or end_override[0] == "sitl_error"
+        or (end_override[0] == "aborted" and log.end == "sitl_error")  # stopped before it started
+    ):
         log.end, log.end_detail = end_override
+        if log.end == "aborted":  # the vehicle logged its stop; say why it stopped
+            log.events.append(
+                {"t_s": log.end_t_s, "kind": "end", "text": f"aborted: {log.end_detail}", "severity": 4}
+            )
     if pilot_note and log.end != "landed":
         log.end_detail = f"{log.end_detail}; {pilot_note}"
     if pilot_note:

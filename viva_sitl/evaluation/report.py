@@ -283,5 +283,8 @@ def compare_docs(a: dict[str, Any], b: dict[str, Any]) -> dict[str, Any]:
     res["b"] = {"pilot": b["pilot"], "spec": b["spec"]["source"], "seed": b["spec"]["seed"]}
     sa = {(s["index"], s["seed"]): s for s in a["scenarios"]}
     sb = {(s["index"], s["seed"]): s for s in b["scenarios"]}
-    res["same_scenarios"] = all(sa[k] == sb[k] for k in set(sa) & set(sb)) and set(sa) == set(sb)
+    # the pairs' scenarios are identical (a one-trial run, e.g. `trials fly --trial K`, pairs with trial K of a
+    # campaign: the trials only one side has are counted in unmatched_a / unmatched_b, not compared)
+    both = set(sa) & set(sb)
+    res["same_scenarios"] = bool(both) and all(sa[k] == sb[k] for k in both)
     return res
