@@ -334,7 +334,7 @@ class ParamStore:
         self._names = list(self._specs)
         self._index = {n: i for i, n in enumerate(self._names)}
         self._values: dict[str, float] = {n: float(s.default) for n, s in self._specs.items()}
-        self._effective: dict[str, float] = {}  # get()'s constrained values (the 250 Hz loop reads ~18 a step)
+        self._effective: dict[str, float] = {}  # get()'s clamped values: the 250 Hz loop reads ~18 a step
         self._modified: set[str] = set()
         self._revision = 0
 
