@@ -457,3 +457,44 @@ def test_trial_video_at_the_camera_rate(tmp_path: Path) -> None:
     with av.open(str(tmp_path / "vac.mp4")) as c:
         st = c.streams.video[0]
         assert (st.width, st.height) == (640, 480) and st.frames == 180  # 6 s at 30 fps, descend acts at 5 Hz
+
+
+class FrameReader:
+    """An in-process pilot that reads every 640x480 VAC frame (as a vision pilot would) and lands when told."""
+
+    name, control_hz, frame_hz, uses_ground_truth = "frame-reader", 30.0, 30.0, False
+
+    def reset(self, scenario: object, truth: object) -> None:
+        self.landing = False
+
+    def act(self, obs: object, ctl: object) -> None:
+        assert obs.frame is not None and obs.frame.image_bgr.shape == (480, 640, 3)  # type: ignore[attr-defined]
+        if obs.land_now and not self.landing:  # type: ignore[attr-defined]
+            self.landing = ctl.land().ok  # type: ignore[attr-defined]
+
+
+def test_a_trial_flies_the_same_over_a_lossless_tile_cache_of_its_footage(
+    nogt_clip: Path, tmp_path: Path
+) -> None:
+    """The faster footage form (`footage ingest --tiles`) is a drop-in: same trajectory, same scores, same frames."""
+    from viva_sitl.evaluation.runner import run_inprocess_trial
+    from viva_sitl.footage.ingest import ingest_tiles
+
+    tiles = tmp_path / "nogt_tiles"
+    ingest_tiles(str(nogt_clip.with_suffix(".toml")), out_dir=tiles, codec="raw", show_progress=False)
+    rows, videos = [], []
+    for k, footage in enumerate((str(nogt_clip), str(tiles))):
+        spec = spec_from_dict(
+            {"trials": {"name": "t", "n": 1, "seed": 3, "timeout_s": 30.0},
+             "scenario": {"footage": footage, "start": "air", "north_m": [-5.0, 5.0], "east_m": [-5.0, 5.0],
+                          "altitude_m": 4.0, "land_at_s": 0.5}},
+            "t",
+        )  # fmt: skip
+        sc = draw_scenarios(spec)[0]
+        d = tmp_path / f"t{k}"
+        row = run_inprocess_trial(spec, sc, f"{__name__}:FrameReader", d, video=True)
+        rows.append({k2: v for k2, v in row.items() if k2 not in ("wall_s", "footage")})
+        videos.append((d / "vac.mp4").read_bytes())
+    assert rows[0]["end"] == "landed", rows[0]
+    assert rows[0] == rows[1]
+    assert len(videos[0]) > 10_000 and videos[0] == videos[1]  # the VAC frames the pilot saw: identical
