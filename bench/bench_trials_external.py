@@ -24,6 +24,7 @@ trials is reported. Prints a JSON report; bench/results_trials.md records a run.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import platform
@@ -62,6 +63,7 @@ class MemorySampler(threading.Thread):
         super().__init__(daemon=True)
         self.marker = marker
         self.hwm_kb: dict[tuple[int, str], tuple[str, int]] = {}  # (pid, start) -> (trial dir, VmHWM kB)
+        self.cmds: dict[tuple[int, str], str] = {}
         self.stop_event = threading.Event()
 
     def _trial_of(self, pid: str) -> str | None:
@@ -92,7 +94,19 @@ class MemorySampler(threading.Thread):
                     continue
                 hwm = next((int(x.split()[1]) for x in status.splitlines() if x.startswith("VmHWM:")), 0)
                 key = (int(pid), start)
+                if key not in self.cmds:
+                    with contextlib.suppress(OSError):
+                        self.cmds[key] = (
+                            Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ")[:90].decode()
+                        )
                 self.hwm_kb[key] = (trial, max(hwm, self.hwm_kb.get(key, (trial, 0))[1]))
+
+    def detail(self) -> dict[str, list[str]]:
+        """Per trial: each counted process, its peak RSS and the start of its command line."""
+        out: dict[str, list[str]] = {}
+        for key, (trial, kb) in sorted(self.hwm_kb.items()):
+            out.setdefault(trial, []).append(f"{key[0]} {kb / 1024:.0f} MB {self.cmds.get(key, '?')}")
+        return out
 
     def per_trial_mb(self) -> dict[str, float]:
         out: dict[str, float] = {}
@@ -143,8 +157,10 @@ def run_speed(n: int, speed: float, seed: int, jobs: int) -> dict[str, Any]:
                 "end_detail": r["end_detail"][:160],
             })  # fmt: skip
         mem = sampler.per_trial_mb()
+        mem_detail = sampler.detail()
     return {"speed": speed, "wall_s": round(wall, 2), "trials_per_hour": round(3600.0 * n / wall, 1),
-            "trials": trials, "mem_mb_per_trial": sorted(round(v, 1) for v in mem.values())}  # fmt: skip
+            "trials": trials, "mem_mb_per_trial": sorted(round(v, 1) for v in mem.values()),
+            "mem_detail": mem_detail}  # fmt: skip
 
 
 def compare(base: dict[str, Any], other: dict[str, Any], tol_point_m: float, tol_time_s: float) -> list[str]:
