@@ -3,6 +3,7 @@ DroneEnv (the reference), measured in the same run, over the 4K bench clip, 640x
 
     /work/venv/bin/python bench/bench_trials.py                          # defaults: 4 trials per side, jobs = cores
     /work/venv/bin/python bench/bench_trials.py --trials 6 --jobs 2 --ref-python /work/refvenv/bin/python
+    nice -n 10 /work/venv/bin/python bench/bench_trials.py --trials 2 --jobs 2 --rounds 2 --variants video tiles
 
 One trial = a 60 s (sim) emergency landing: air start at 30 m over the clip, "land now" at 1 s.
   ours: `run_campaign(spec, "bench.bench_trials:VisionDescend", jobs=J)`: the Vehicle (250 Hz EAV + autopilot) with
@@ -11,9 +12,16 @@ One trial = a 60 s (sim) emergency landing: air start at 30 m over the clip, "la
   ref:  DroneEnv(render_mode="rgb_array", render_fps=30) with its drone view set to 640x480, reset at z = 30 m,
         then env.step() with a proportional descent policy (reads the observation the same way) until it
         terminates (z <= 2 m) or 60 s (1800 steps) pass: J such loops in J processes at once.
+Variants of ours (--variants): "video" flies over the H.264 clip itself; "tiles" over its `footage ingest --tiles`
+cache (jpeg q95, bench_tiles.make_tiles; a trial's footage may be any tile cache folder).
 Both are normalised to 60 s of simulated flight per trial (a reference loop that terminates early counts the
 seconds it flew). Memory: peak RSS (VmHWM: ru_maxrss would carry the parent's peak across fork + exec) of one
-process running one trial (ours: a fresh process that imports, opens the footage and flies; ref: its process). Prints a JSON report; bench/results_trials.md records a run.
+process running one trial (ours: a fresh process that imports, opens the footage and flies; ref: its process).
+Floor (--floor): CPU ms of what no trial with a 30 fps 640x480 VAC can skip, measured in this process: one
+cv2.warpPerspective to 640x480 (the renderer's flags, from a 1280x960 level), and 1/30 s of the vehicle loop
+(250 Hz EAV + autopilot + monitor: a trial of the `descend` pilot, which asks for no frames); against the
+reference's CPU ms per step (its process_time / steps) it bounds the ratio any speed-up of the rest can reach.
+Prints a JSON report; bench/results_trials.md records a run.
 """
 
 from __future__ import annotations
@@ -50,8 +58,9 @@ with contextlib.redirect_stdout(sys.stderr):
 env.drone_view_size = np.array((640, 480))
 env.simulator.camera.output = np.array((640, 480), dtype=np.int32)
 rng = np.random.default_rng(seed)
-t0 = time.perf_counter()
+t0, c0 = time.perf_counter(), time.process_time()
 flown = 0.0
+steps = 0
 brightness = 0.0
 for k in range(trials):
     with contextlib.redirect_stdout(sys.stderr):
@@ -62,12 +71,14 @@ for k in range(trials):
         thrust = float(np.clip(0.3 * (-0.5 - vz), -0.5, 0.5))  # descend at 0.5 m/s (z up in viva)
         obs, term, info = env.step(np.array([0.0, 0.0, 0.0, thrust]))
         vz = float(info["drone_state"].vel.z)
+        steps += 1
         if term:
             break
     flown += (step + 1) / 30.0
-wall = time.perf_counter() - t0
+wall, cpu = time.perf_counter() - t0, time.process_time() - c0
 hwm = next(int(x.split()[1]) for x in open("/proc/self/status") if x.startswith("VmHWM:"))
-print(json.dumps({"trials": trials, "wall_s": wall, "sim_s": flown, "max_rss_mb": hwm / 1024}))
+print(json.dumps({"trials": trials, "wall_s": wall, "sim_s": flown, "max_rss_mb": hwm / 1024, "cpu_s": cpu,
+                  "steps": steps}))
 """
 
 
@@ -140,7 +151,36 @@ def ref(ref_python: str, clip: Path, n: int, jobs: int) -> dict[str, Any]:
     outs = [json.loads(p.communicate()[0].strip().splitlines()[-1]) for p in procs]
     wall = time.perf_counter() - t0
     return {"trials": n, "wall_s": wall, "sim_s": sum(o["sim_s"] for o in outs),
-            "max_rss_mb": max(o["max_rss_mb"] for o in outs)}  # fmt: skip
+            "max_rss_mb": max(o["max_rss_mb"] for o in outs),
+            "cpu_ms_per_step": 1000 * sum(o["cpu_s"] for o in outs) / max(1, sum(o["steps"] for o in outs))}  # fmt: skip
+
+
+def floor(footage: Path) -> dict[str, float]:
+    """CPU ms per 1/30 s of sim that no trial with a 30 fps 640x480 VAC can skip (see the module doc)."""
+    import cv2
+
+    from viva_sitl.evaluation.runner import run_inprocess_trial
+    from viva_sitl.evaluation.spec import draw_scenarios
+
+    rng = np.random.default_rng(0)
+    src = rng.integers(0, 255, (960, 1280, 3), dtype=np.uint8)
+    h = np.array([[1.9, 0.3, 20.0], [-0.3, 1.9, 30.0], [0.0, 0.0, 1.0]])
+    cv2.warpPerspective(src, h, (640, 480), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP)
+    c0 = time.process_time()
+    for _ in range(200):
+        cv2.warpPerspective(src, h, (640, 480), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
+                            borderMode=cv2.BORDER_CONSTANT, borderValue=(0, 0, 0))  # fmt: skip
+    warp_ms = 1000 * (time.process_time() - c0) / 200
+    spec = bench_spec(footage, 1)
+    with tempfile.TemporaryDirectory() as d:
+        sc = draw_scenarios(spec)[0]
+        run_inprocess_trial(spec, sc, "descend", Path(d) / "warm")
+        c0 = time.process_time()
+        row = run_inprocess_trial(spec, sc, "descend", Path(d) / "t")
+        loop_cpu = time.process_time() - c0
+    loop_ms = 1000 * loop_cpu / (float(row["end_t_s"]) * 30.0)
+    return {"warp_640x480_cpu_ms": round(warp_ms, 3), "vehicle_loop_cpu_ms_per_frame": round(loop_ms, 3),
+            "floor_cpu_ms_per_frame": round(warp_ms + loop_ms, 3)}  # fmt: skip
 
 
 def per_hour(r: dict[str, Any]) -> tuple[float, float]:
@@ -157,29 +197,47 @@ def main() -> int:
     ap.add_argument(
         "--frames", type=int, default=60, help="frames of the 4K bench clip (bench_core.make_clip)"
     )
+    ap.add_argument("--variants", nargs="+", default=["video", "tiles"], choices=["video", "tiles"])
+    ap.add_argument("--no-floor", action="store_true", help="skip the floor measurement")
     args = ap.parse_args()
     from bench.bench_core import DEFAULT_CACHE, make_clip
+    from bench.bench_tiles import make_tiles
 
     clip = make_clip(DEFAULT_CACHE, args.frames)
+    footage = {"video": clip}
+    if "tiles" in args.variants:
+        footage["tiles"] = make_tiles(clip, "jpeg")
     res: dict[str, Any] = {
         "machine": f"{platform.node()} {platform.machine()} {os.cpu_count()} cpus, {platform.python_version()}",
         "load_avg_before": os.getloadavg(), "clip": str(clip), "jobs": args.jobs, "rounds": [],
     }  # fmt: skip
     for _ in range(args.rounds):
-        r_ref = ref(args.ref_python, clip, args.trials, args.jobs)
-        r_ours = ours(clip, args.trials, args.jobs)
-        res["rounds"].append({"ref": r_ref, "ours": r_ours})
+        rnd: dict[str, Any] = {
+            "load_avg": os.getloadavg(),
+            "ref": ref(args.ref_python, clip, args.trials, args.jobs),
+        }
+        for v in args.variants:
+            rnd[f"ours_{v}"] = ours(footage[v], args.trials, args.jobs)
+        rnd["load_avg_after"] = os.getloadavg()
+        res["rounds"].append(rnd)
     res["load_avg_after"] = os.getloadavg()
-    ours_h = [per_hour(r["ours"]) for r in res["rounds"]]
-    ref_h = [per_hour(r["ref"]) for r in res["rounds"]]
     med = lambda xs: float(np.median(xs))  # noqa: E731
-    res["ours_trials_per_hour"] = med([h[0] for h in ours_h])
-    res["ours_60s_trials_per_hour"] = med([h[1] for h in ours_h])
+    ref_h = [per_hour(r["ref"]) for r in res["rounds"]]
     res["ref_trials_per_hour"] = med([h[0] for h in ref_h])
     res["ref_60s_trials_per_hour"] = med([h[1] for h in ref_h])
-    res["ratio_60s"] = res["ours_60s_trials_per_hour"] / res["ref_60s_trials_per_hour"]
-    res["ours_rss_mb_per_trial_process"] = ours_memory(clip)
+    for v in args.variants:
+        ours_h = [per_hour(r[f"ours_{v}"]) for r in res["rounds"]]
+        res[f"ours_{v}_trials_per_hour"] = med([h[0] for h in ours_h])
+        res[f"ours_{v}_60s_trials_per_hour"] = med([h[1] for h in ours_h])
+        # per round (same-run pairs), then the median of the ratios
+        res[f"ratio_{v}_60s"] = med([o[1] / r[1] for o, r in zip(ours_h, ref_h, strict=True)])
+        res[f"ours_{v}_rss_mb_per_trial_process"] = ours_memory(footage[v])
     res["ref_rss_mb_per_process"] = max(r["ref"]["max_rss_mb"] for r in res["rounds"])
+    res["ref_cpu_ms_per_step"] = med([r["ref"]["cpu_ms_per_step"] for r in res["rounds"]])
+    if not args.no_floor:
+        fl = floor(footage.get("tiles", clip))
+        fl["max_ratio_vs_ref_cpu"] = round(res["ref_cpu_ms_per_step"] / fl["floor_cpu_ms_per_frame"], 2)
+        res["floor"] = fl
     print(json.dumps(res, indent=1))
     return 0
 

@@ -179,6 +179,61 @@ def test_scores_hand_computed_on_the_synthetic_field() -> None:
     )
 
 
+def test_motion_derived_objects_count_in_the_object_distance() -> None:
+    """A `footage annotate --method motion` track (class "moving object", derived) parked 3 m east of the touchdown:
+    not a person nor a vehicle, so dist_person_m / dist_vehicle_m ignore it, but dist_object_m and
+    min_dist_object_m (any tracked object) see it, and a criterion on min_dist_object_m fails on it."""
+    import numpy as np
+
+    from viva_sitl.world import ObjectClass, WorldModel
+    from viva_sitl.world.tracks import TrackInfo, analytic_tracks
+
+    synth = load_world("synthetic")
+    fps, frames = 30.0, 900
+    infos = [TrackInfo(0, "motion", 1, ObjectClass.MOVING, "moving object", True),
+             TrackInfo(1, "motion", 2, ObjectClass.PERSON, "person", False)]  # fmt: skip
+    pos = np.zeros((frames, 2, 2))
+    pos[:, 0] = (0.0, 3.0)  # the derived object: still, 3 m east of the touchdown point (0, 0)
+    pos[:, 1, 0] = 40.0  # a person 40 m north: far
+    # and the derived object passes 1 m from the descent path while the vehicle is at 5 m (t = 2 s, footage 2 s)
+    pos[60, 0] = (0.0, 1.0)
+    world = WorldModel("derived", synth.geometry, analytic_tracks(infos, pos, np.full((2, 2), 0.6), fps),
+                       synth.risk_map)  # fmt: skip
+    sc = Scenario(index=0, seed=1, footage="synthetic", start="air", north_m=0.0, east_m=0.0, altitude_m=10.0,
+                  yaw_deg=0.0, footage_time_s=0.0, land_at_s=0.0, wind_ned_m_s=(0.0, 0.0, 0.0), gust_std_m_s=0.0,
+                  params=(), failures=(), timeout_s=60.0)  # fmt: skip
+    log = TrialLog(end="landed", end_detail="touchdown and disarm", end_t_s=5.0)
+    for k in range(9):
+        t = 0.5 * k
+        row = dict.fromkeys(TRAJECTORY_COLUMNS, 0)
+        row.update(t_s=t, sim_time_s=t, down_m=-(9.0 - 2.0 * t), vd_m_s=2.0, mode="AUTO_LAND", armed=1)
+        log.rows.append(tuple(row[c] for c in TRAJECTORY_COLUMNS))
+    log.touchdown = Touchdown(4.5, 0.0, 0.0, 0.5, 0.0)
+    crit = spec_from_dict(
+        {"scoring": {"final_descent_below_m": 6.0, "criterion": {"min_dist_object_m": 2.0}}}, "x"
+    )
+    r = score_trial(sc, log, world, crit)
+    assert r["dist_object_m"] == pytest.approx(3.0, abs=1e-3)
+    # at t = 2 s, 5 m up: inside the final descent
+    assert r["min_dist_object_m"] == pytest.approx(1.0, abs=1e-3)
+    assert r["dist_person_m"] == pytest.approx(40.0, abs=1e-3) and r["dist_vehicle_m"] is None
+    assert r["objects_present"] is True and r["vehicles_present"] is False
+    assert r["success"] is False and r["criterion_failures"] == "min_dist_object_m 1.0 < 2"
+    assert set(COLUMNS) >= {"dist_object_m", "min_dist_object_m", "objects_present"}
+
+
+def test_results_of_schema_v1_still_read(tmp_path: Path) -> None:
+    from viva_sitl.evaluation.report import read_results
+
+    v1 = {c: 1.0 for c in COLUMNS if c not in ("dist_object_m", "min_dist_object_m", "objects_present")}
+    (tmp_path / "results.json").write_text(json.dumps({"schema": "vivasitl.trials.v1", "rows": [v1]}))
+    row = read_results(tmp_path)["rows"][0]
+    assert row["min_dist_object_m"] is None and row["min_dist_person_m"] == 1.0  # unavailable, not zero
+    (tmp_path / "results.json").write_text(json.dumps({"schema": "vivasitl.trials.v0", "rows": []}))
+    with pytest.raises(ValueError, match="schema 'vivasitl.trials.v0', expected vivasitl.trials.v2"):
+        read_results(tmp_path)
+
+
 def test_scores_without_ground_truth_are_unavailable_not_zero(nogt_clip: Path) -> None:
     world = load_world(str(nogt_clip))
     assert not world.has_objects and not world.has_risk_map
@@ -248,7 +303,7 @@ def test_inprocess_pilots_end_to_end_pool_determinism_and_single_trial(tmp_path:
                      (camp.out_dir / "trials" / f"{s.index:04d}" / "events.jsonl").read_text().splitlines()]  # fmt: skip
             assert kinds.index("land_now") < kinds.index("touchdown") < kinds.index("end")
         doc = json.loads((camp.out_dir / "results.json").read_text())
-        assert doc["schema"] == "vivasitl.trials.v1" and doc["scenarios"] == [s.to_dict() for s in scen]
+        assert doc["schema"] == "vivasitl.trials.v2" and doc["scenarios"] == [s.to_dict() for s in scen]
         assert list(_csv_rows(camp.out_dir / "results.csv")[0]) == list(COLUMNS)
         assert "data:image/png;base64," in (camp.out_dir / "report.html").read_text()
     for r, s in zip(d.ordered_rows(), scen, strict=True):  # descend lands where it was told to land
@@ -402,3 +457,44 @@ def test_trial_video_at_the_camera_rate(tmp_path: Path) -> None:
     with av.open(str(tmp_path / "vac.mp4")) as c:
         st = c.streams.video[0]
         assert (st.width, st.height) == (640, 480) and st.frames == 180  # 6 s at 30 fps, descend acts at 5 Hz
+
+
+class FrameReader:
+    """An in-process pilot that reads every 640x480 VAC frame (as a vision pilot would) and lands when told."""
+
+    name, control_hz, frame_hz, uses_ground_truth = "frame-reader", 30.0, 30.0, False
+
+    def reset(self, scenario: object, truth: object) -> None:
+        self.landing = False
+
+    def act(self, obs: object, ctl: object) -> None:
+        assert obs.frame is not None and obs.frame.image_bgr.shape == (480, 640, 3)  # type: ignore[attr-defined]
+        if obs.land_now and not self.landing:  # type: ignore[attr-defined]
+            self.landing = ctl.land().ok  # type: ignore[attr-defined]
+
+
+def test_a_trial_flies_the_same_over_a_lossless_tile_cache_of_its_footage(
+    nogt_clip: Path, tmp_path: Path
+) -> None:
+    """The faster footage form (`footage ingest --tiles`) is a drop-in: same trajectory, same scores, same frames."""
+    from viva_sitl.evaluation.runner import run_inprocess_trial
+    from viva_sitl.footage.ingest import ingest_tiles
+
+    tiles = tmp_path / "nogt_tiles"
+    ingest_tiles(str(nogt_clip.with_suffix(".toml")), out_dir=tiles, codec="raw", show_progress=False)
+    rows, videos = [], []
+    for k, footage in enumerate((str(nogt_clip), str(tiles))):
+        spec = spec_from_dict(
+            {"trials": {"name": "t", "n": 1, "seed": 3, "timeout_s": 30.0},
+             "scenario": {"footage": footage, "start": "air", "north_m": [-5.0, 5.0], "east_m": [-5.0, 5.0],
+                          "altitude_m": 4.0, "land_at_s": 0.5}},
+            "t",
+        )  # fmt: skip
+        sc = draw_scenarios(spec)[0]
+        d = tmp_path / f"t{k}"
+        row = run_inprocess_trial(spec, sc, f"{__name__}:FrameReader", d, video=True)
+        rows.append({k2: v for k2, v in row.items() if k2 not in ("wall_s", "footage")})
+        videos.append((d / "vac.mp4").read_bytes())
+    assert rows[0]["end"] == "landed", rows[0]
+    assert rows[0] == rows[1]
+    assert len(videos[0]) > 10_000 and videos[0] == videos[1]  # the VAC frames the pilot saw: identical

@@ -5,9 +5,15 @@ from __future__ import annotations
 
 import csv
 import json
+import os
+import re
+import signal
 import subprocess
 import sys
+import threading
+import time
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -111,3 +117,162 @@ def test_sitl_scenario_flag_rejects_a_bad_file(tmp_path: Path) -> None:
                        capture_output=True, text=True, timeout=60, cwd=REPO)  # fmt: skip
     assert r.returncode == 2
     assert r.stderr.strip() == "viva-sitl: scenario: schema 'something-else' is not vivasitl.scenario.v1"
+
+
+# ----------------------------------------------------------------------- Ctrl-C, resume, hung pilots (issue 8 §4)
+
+LANDING_PILOT = PYMAVLINK_PILOT.replace(
+    'if scenario["index"] == 0:\n    raise SystemExit("my pilot crashed: no camera")\n', ""
+).replace('if scenario["index"] == 1:\n    time.sleep(3600)\n', "")
+
+# connects, keeps the link alive, never lands: only a limit can end its trial
+NEVER_LANDS_PILOT = r"""
+import os, sys, time
+os.environ["MAVLINK20"] = "1"
+from pymavlink import mavutil
+m = mavutil.mavlink_connection(sys.argv[1], source_system=255)
+m.wait_heartbeat(timeout=60)
+print("connected, hovering forever", flush=True)
+while True:
+    m.mav.heartbeat_send(mavutil.mavlink.MAV_TYPE_GCS, mavutil.mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0)
+    m.recv_match(blocking=True, timeout=0.5)
+"""
+
+
+def _procs(marker: str) -> dict[tuple[int, str], str]:
+    """Live processes whose command line holds `marker`: (pid, start time) -> command line."""
+    out: dict[tuple[int, str], str] = {}
+    for pid in os.listdir("/proc"):
+        if not pid.isdigit() or int(pid) == os.getpid():
+            continue
+        try:
+            cmd = Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
+            stat = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        if marker in cmd and stat[0] != "Z":
+            out[(int(pid), stat[19])] = cmd
+    return out
+
+
+def _alive(key: tuple[int, str]) -> bool:
+    try:
+        stat = Path(f"/proc/{key[0]}/stat").read_text().rsplit(")", 1)[1].split()
+    except OSError:
+        return False
+    return stat[19] == key[1] and stat[0] != "Z"
+
+
+def _wait_for(cond: Any, timeout_s: float, what: str) -> Any:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        got = cond()
+        if got:
+            return got
+        time.sleep(0.1)  # polling a condition, not a fixed wait
+    raise AssertionError(f"timed out after {timeout_s:.0f} s waiting for {what}")
+
+
+def test_ctrl_c_keeps_finished_trials_leaves_no_process_and_resume_completes(tmp_path: Path) -> None:
+    script = tmp_path / "pilot.py"
+    script.write_text(LANDING_PILOT)
+    spec_file = tmp_path / "spec.toml"
+    spec_file.write_text(
+        '[trials]\nname = "ctrlc"\nn = 4\nseed = 11\ntimeout_s = 40.0\nspeed = 4.0\n'
+        '[scenario]\nfootage = "synthetic"\nstart = "air"\nnorth_m = [-30.0, 30.0]\neast_m = [-30.0, 30.0]\n'
+        "altitude_m = [5.0, 8.0]\nland_at_s = [3.0, 6.0]\n"
+    )
+    out = tmp_path / "out"
+    cmd = [sys.executable, "-m", "viva_sitl", "trials", "run", str(spec_file), "--pilot",
+           f"{{python}} {script} {{pymavlink_url}}", "--jobs", "2", "-o", str(out), "--no-progress"]  # fmt: skip
+    # its own process group, signalled as a whole: what Ctrl-C in a terminal does to the foreground job
+    cli = subprocess.Popen(cmd, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                           start_new_session=True)  # fmt: skip
+    try:
+        trials = out / "trials"
+
+        def first_done_and_another_flying() -> bool:
+            done = list(trials.glob("*/result.json"))
+            flying = [
+                d for d in trials.glob("*") if (d / "pilot.log").exists() and not (d / "result.json").exists()
+            ]
+            return bool(done) and bool(flying) and bool(_procs(str(script)))
+
+        _wait_for(first_done_and_another_flying, 240, "one finished trial and another one's pilot running")
+        running = _procs(str(tmp_path))  # viva-sitl run (--scenario under tmp_path) and the pilot scripts
+        assert any("viva_sitl" in c and " run " in c for c in running.values()), running
+        kept = {p.parent.name: p.read_text() for p in trials.glob("*/result.json")}
+        t_int = time.monotonic()
+        os.killpg(cli.pid, signal.SIGINT)
+        _, err = cli.communicate(timeout=60)
+        took = time.monotonic() - t_int
+    finally:
+        if cli.poll() is None:
+            os.killpg(cli.pid, signal.SIGKILL)
+    assert cli.returncode == 130, err
+    assert took < 30.0, f"Ctrl-C took {took:.1f} s to end the command"
+    last = err.strip().splitlines()[-1]
+    assert re.fullmatch(
+        rf"interrupted: (\d) of 4 trials kept in {re.escape(str(out))}; rerun with --resume to complete the rest",
+        last,
+    ), err
+    n_kept = int(last.split()[1])
+    assert n_kept >= len(kept) >= 1
+    doc = json.loads((out / "results.json").read_text())
+    assert doc["complete"] is False and doc["trials_done"] == n_kept
+    for name, text in kept.items():  # finished before Ctrl-C: kept as they were
+        assert (trials / name / "result.json").read_text() == text
+    assert [k for k in running if _alive(k)] == [], "processes left after Ctrl-C"
+    assert _procs(str(tmp_path)) == {}
+
+    r = subprocess.run([*cmd, "--resume"], cwd=REPO, capture_output=True, text=True, timeout=400)
+    assert r.returncode == 0, r.stderr
+    doc2 = json.loads((out / "results.json").read_text())
+    assert doc2["complete"] is True and doc2["trials_done"] == 4
+    assert doc2["scenarios"] == doc["scenarios"]  # the same draw: resume completes, it does not redraw
+    ref = subprocess.run([sys.executable, "-m", "viva_sitl", "trials", "scenarios", str(spec_file)], cwd=REPO,
+                         capture_output=True, text=True, timeout=60, check=True)  # fmt: skip
+    assert [json.loads(x) for x in ref.stdout.splitlines()] == doc2["scenarios"]
+    assert all(r["end"] == "landed" for r in doc2["rows"]), [
+        (r["end"], r["end_detail"]) for r in doc2["rows"]
+    ]
+    for name, text in kept.items():  # not flown again
+        assert (trials / name / "result.json").read_text() == text
+    assert _procs(str(tmp_path)) == {}
+
+
+def test_pilot_that_never_lands_is_stopped_at_the_wall_limit_with_its_processes(tmp_path: Path) -> None:
+    script = tmp_path / "hover.py"
+    script.write_text(NEVER_LANDS_PILOT)
+    spec = spec_from_dict(
+        {"trials": {"name": "hang", "n": 1, "seed": 1, "timeout_s": 3000.0, "speed": 1.0},
+         "scenario": {"footage": "synthetic", "start": "air", "north_m": [-10.0, 10.0], "east_m": [-10.0, 10.0],
+                      "altitude_m": 6.0, "land_at_s": 2.0}},
+        "hang",
+    )  # fmt: skip
+    seen: dict[tuple[int, str], str] = {}
+    box: dict[str, Any] = {}
+
+    def run() -> None:
+        box["camp"] = run_campaign(spec, f"{{python}} {script} {{pymavlink_url}}", tmp_path / "out", jobs=1,
+                                   progress=False, wall_limit_s=45.0)  # fmt: skip
+
+    th = threading.Thread(target=run)
+    th.start()
+
+    def both_running() -> bool:
+        seen.update(_procs(str(tmp_path)))
+        pilot_log = tmp_path / "out" / "trials" / "0000" / "pilot.log"
+        return (
+            any(str(script) in c for c in seen.values())
+            and pilot_log.exists()
+            and ("hovering forever" in pilot_log.read_text())
+        )
+
+    _wait_for(both_running, 45, "the pilot connected to its viva-sitl run")
+    th.join(120)
+    assert not th.is_alive()
+    (row,) = box["camp"].ordered_rows()
+    assert row["end"] == "wall_timeout" and "pilot hung?" in row["end_detail"], row
+    assert any("viva_sitl" in c and " run " in c for c in seen.values()), seen
+    assert [k for k in seen if _alive(k)] == [], "processes left after the wall limit"

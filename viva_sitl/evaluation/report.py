@@ -1,4 +1,4 @@
-"""Reports of a campaign in OUT_DIR: results.json (schema vivasitl.trials.v1: spec, scenarios, rows, aggregates),
+"""Reports of a campaign in OUT_DIR: results.json (schema vivasitl.trials.v2: spec, scenarios, rows, aggregates),
 results.csv (one row per trial, scoring.COLUMNS), report.html (self-contained: matplotlib figures as base64 PNG).
 
     write_reports(campaign)               # after (or during an interrupted) run_campaign
@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from viva_sitl import __version__
-from viva_sitl.evaluation.scoring import COLUMNS, SCHEMA
+from viva_sitl.evaluation.scoring import COLUMNS, OLDER_SCHEMAS, SCHEMA
 from viva_sitl.evaluation.stats import aggregate, paired
 
 if TYPE_CHECKING:
@@ -69,7 +69,9 @@ def read_results(out_dir: str | Path) -> dict[str, Any]:
         raise ValueError(f"{p}: no results (run `viva-sitl trials run` first)") from None
     except json.JSONDecodeError as exc:
         raise ValueError(f"{p}: not valid JSON: {exc}") from None
-    if doc.get("schema") != SCHEMA:
+    if doc.get("schema") in OLDER_SCHEMAS:  # the columns added since read as unavailable
+        doc["rows"] = [{c: r.get(c) for c in COLUMNS} | r for r in doc.get("rows", [])]
+    elif doc.get("schema") != SCHEMA:
         raise ValueError(f"{p}: schema {doc.get('schema')!r}, expected {SCHEMA}")
     return doc
 

@@ -1,6 +1,6 @@
 """Per-trial scores from a TrialLog and the footage's ground truth (WorldModel). Pure.
 
-Result row, schema `vivasitl.trials.v1` (one row per trial in results.csv / results.json; units in the names;
+Result row, schema `vivasitl.trials.v2` (one row per trial in results.csv / results.json; units in the names;
 null = unavailable, never zero):
 
     trial, pilot, seed, footage, start                  the scenario (the full scenario is in results.json)
@@ -17,15 +17,22 @@ null = unavailable, never zero):
                                                         -> null too, see gt_objects and the *_present columns)
     min_dist_person_m, min_dist_vehicle_m               minimum over the final descent (below
                                                         final_descent_below_m above ground, to touchdown or end)
+    dist_object_m, min_dist_object_m                    the same to the nearest tracked object of any class:
+                                                        people, vehicles, "other" and the motion-derived tracks
+                                                        of `footage annotate --method motion` ("moving object",
+                                                        class unknown: counted here, not as people or vehicles)
     risk_level                                          1..5 under the touchdown point at touchdown time
     time_to_land_s                                      touchdown - "land now" (null: no touchdown)
     flight_time_s, path_length_m, energy_wh, time_outside_footage_s
     failsafes, failsafe_texts                           count and "; "-joined texts of failsafe events
     gt_objects, gt_risk                                 the footage has object tracks / a risk map
-    persons_present, vehicles_present                   any person / vehicle in the footage's tracks
+    persons_present, vehicles_present, objects_present  any person / vehicle / object in the footage's tracks
     success                                             the criterion (null when a score it needs is unavailable)
     criterion_failures                                  which checks failed ("; "-joined)
     wall_s                                              wall time of the trial (the only non-deterministic column)
+
+v2 (from v1): + dist_object_m, min_dist_object_m, objects_present. report.read_results reads v1 files too (the new
+columns null).
 """
 
 from __future__ import annotations
@@ -37,17 +44,18 @@ import numpy as np
 
 from viva_sitl.evaluation.monitor import TRAJECTORY_COLUMNS, TrialLog
 from viva_sitl.evaluation.spec import Criterion, Scenario, TrialSpec
-from viva_sitl.world import PEOPLE, VEHICLES, WorldModel
+from viva_sitl.world import ALL, PEOPLE, VEHICLES, WorldModel
 
-SCHEMA = "vivasitl.trials.v1"
+SCHEMA = "vivasitl.trials.v2"
+OLDER_SCHEMAS = ("vivasitl.trials.v1",)  # readable: rows lack the columns added since
 COLUMNS = (
     "trial", "pilot", "seed", "footage", "start", "start_north_m", "start_east_m", "start_altitude_m",
     "start_yaw_deg", "footage_time_s", "land_at_s", "wind_speed_m_s", "failures", "end", "end_detail", "end_t_s",
     "landed", "touchdown_north_m", "touchdown_east_m", "touchdown_vertical_speed_m_s",
     "touchdown_horizontal_speed_m_s", "touchdown_speed_m_s", "dist_person_m", "dist_vehicle_m", "min_dist_person_m",
-    "min_dist_vehicle_m", "risk_level", "time_to_land_s", "flight_time_s", "path_length_m", "energy_wh",
-    "time_outside_footage_s", "failsafes", "failsafe_texts", "gt_objects", "gt_risk", "persons_present",
-    "vehicles_present", "success", "criterion_failures", "wall_s",
+    "min_dist_vehicle_m", "dist_object_m", "min_dist_object_m", "risk_level", "time_to_land_s", "flight_time_s",
+    "path_length_m", "energy_wh", "time_outside_footage_s", "failsafes", "failsafe_texts", "gt_objects", "gt_risk", "persons_present",
+    "vehicles_present", "objects_present", "success", "criterion_failures", "wall_s",
 )  # fmt: skip
 _I = {c: k for k, c in enumerate(TRAJECTORY_COLUMNS)}
 
@@ -87,6 +95,7 @@ def score_trial(
         counts = world.tracks.count_by_class()
         row["persons_present"] = any(k in ("person", "bicycle") and v > 0 for k, v in counts.items())
         row["vehicles_present"] = any(k in ("car", "bus", "truck") and v > 0 for k, v in counts.items())
+        row["objects_present"] = any(v > 0 for v in counts.values())
     td = log.touchdown
     if td is not None:
         row.update(
@@ -115,11 +124,13 @@ def score_trial(
         if gt_obj and seg.size:
             row["min_dist_person_m"] = _r(_dist(world, seg[:, 1], seg[:, 2], ft, PEOPLE), 3)
             row["min_dist_vehicle_m"] = _r(_dist(world, seg[:, 1], seg[:, 2], ft, VEHICLES), 3)
+            row["min_dist_object_m"] = _r(_dist(world, seg[:, 1], seg[:, 2], ft, ALL), 3)
         if td is not None:
             tft = td.t_s + sc.footage_time_s
             if gt_obj:
                 row["dist_person_m"] = _r(world.tracks.distance_m(td.north_m, td.east_m, tft, PEOPLE), 3)
                 row["dist_vehicle_m"] = _r(world.tracks.distance_m(td.north_m, td.east_m, tft, VEHICLES), 3)
+                row["dist_object_m"] = _r(world.tracks.distance_m(td.north_m, td.east_m, tft, ALL), 3)
             if gt_risk:
                 row["risk_level"] = int(world.risk_at(td.north_m, td.east_m, tft))
     row["success"], fails = judge(row, spec.criterion)
@@ -143,7 +154,8 @@ def judge(row: dict[str, Any], c: Criterion) -> tuple[bool | None, list[str]]:
                 else "no touchdown"
             )
     for key, lim, present in (("dist_person_m", c.min_dist_person_m, "persons_present"),
-                              ("dist_vehicle_m", c.min_dist_vehicle_m, "vehicles_present")):  # fmt: skip
+                              ("dist_vehicle_m", c.min_dist_vehicle_m, "vehicles_present"),
+                              ("dist_object_m", c.min_dist_object_m, "objects_present")):  # fmt: skip
         if lim is None:
             continue
         mkey = "min_" + key

@@ -17,7 +17,8 @@ choice):
     [scenario.params]      PX4 parameter = number or [lo, hi] (e.g. MPC_LAND_SPEED, SIM_MASS)
     [[scenario.failures]]  kind = "gcs_link_lost" | "battery_critical", at_s = [lo, hi], probability = 0..1
     [scoring]  final_descent_below_m, and criterion = {name, landed, max_touchdown_speed_m_s,
-               min_dist_person_m, min_dist_vehicle_m, max_risk_level}: the checks it names (landed: default true);
+               min_dist_person_m, min_dist_vehicle_m, min_dist_object_m (any tracked object, motion-derived
+               "moving object" tracks included), max_risk_level}: the checks it names (landed: default true);
                without it: "safe" = landed, touchdown speed < 1 m/s, >= 5 m from people, risk <= 2
 
 Unknown keys and impossible ranges raise ConfigError with the key named (one line).
@@ -65,6 +66,7 @@ class Criterion:
     max_touchdown_speed_m_s: float | None = 1.0
     min_dist_person_m: float | None = 5.0
     min_dist_vehicle_m: float | None = None
+    min_dist_object_m: float | None = None  # any tracked object, derived "moving object" included
     max_risk_level: int | None = 2
 
     def describe(self) -> str:
@@ -75,6 +77,8 @@ class Criterion:
             parts.append(f">= {self.min_dist_person_m:g} m from people")
         if self.min_dist_vehicle_m is not None:
             parts.append(f">= {self.min_dist_vehicle_m:g} m from vehicles")
+        if self.min_dist_object_m is not None:
+            parts.append(f">= {self.min_dist_object_m:g} m from any object")
         if self.max_risk_level is not None:
             parts.append(f"risk <= {self.max_risk_level}")
         return f"{self.name}: " + ", ".join(parts)

@@ -16,7 +16,8 @@ BOOTSTRAP_SEED = 20240513
 RESAMPLES = 2000
 SUMMARY_COLUMNS = (
     "touchdown_speed_m_s", "touchdown_vertical_speed_m_s", "touchdown_horizontal_speed_m_s", "dist_person_m",
-    "min_dist_person_m", "dist_vehicle_m", "min_dist_vehicle_m", "risk_level", "time_to_land_s", "path_length_m",
+    "min_dist_person_m", "dist_vehicle_m", "min_dist_vehicle_m", "dist_object_m",
+    "min_dist_object_m", "risk_level", "time_to_land_s", "path_length_m",
     "energy_wh", "time_outside_footage_s", "flight_time_s",
 )  # fmt: skip
 
