@@ -142,6 +142,17 @@ def test_bad_inputs_are_one_line(tmp_path: Path, token_segmenter: Path) -> None:
     assert time.monotonic() - t0 < 40
 
 
+def test_bad_detector_is_one_line(tmp_path: Path) -> None:
+    (tmp_path / "w.txt").write_bytes(b"x")
+    for args, needle in (
+        (("--detector", str(tmp_path / "nope.pt")), "detector weights not found: "),
+        (("--detector", str(tmp_path / "w.txt")), "must be a .pt or .onnx file"),
+    ):
+        r = _run(*args)
+        err = [x for x in r.stderr.splitlines() if x.strip()]
+        assert r.returncode == 2 and len(err) == 1 and needle in err[0], (args, r.stderr)
+
+
 def test_ctrl_c_is_a_clean_exit(token_segmenter: Path) -> None:
     p = subprocess.Popen(
         [sys.executable, str(SCRIPT), "udpin://127.0.0.1:9", "--now", "--segmenter", str(token_segmenter)],
