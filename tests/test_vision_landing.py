@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from sitl_process import free_udp_ports
 
 from viva_sitl.evaluation.report import read_results
 from viva_sitl.world import load_world
@@ -151,6 +152,34 @@ def test_bad_detector_is_one_line(tmp_path: Path) -> None:
         r = _run(*args)
         err = [x for x in r.stderr.splitlines() if x.strip()]
         assert r.returncode == 2 and len(err) == 1 and needle in err[0], (args, r.stderr)
+
+
+def test_lost_vehicle_is_a_clean_exit(tmp_path: Path, token_segmenter: Path, sitl_factory: Any) -> None:
+    """Airborne, waiting for "land now" (far away): the vehicle process dies -> one FAILED line, exit 1."""
+    from viva_sitl.evaluation.monitor import Limits
+    from viva_sitl.evaluation.session import write_scenario_file
+    from viva_sitl.evaluation.spec import draw_scenarios, spec_from_dict
+
+    spec = spec_from_dict(
+        {"trials": {"name": "lost", "n": 1, "timeout_s": 600.0},
+         "scenario": {"footage": "synthetic", "start": "air", "altitude_m": 20.0, "land_at_s": 500.0}},
+        "lost",
+    )  # fmt: skip
+    scen = tmp_path / "scenario.json"
+    write_scenario_file(scen, draw_scenarios(spec)[0], Limits(timeout_s=600.0))
+    sitl = sitl_factory(video_port=free_udp_ports(1)[0], extra_args=("--scenario", str(scen)))
+    p = subprocess.Popen(
+        [sys.executable, str(SCRIPT), sitl.ports.mavsdk_url, "--frames", f"tcp://127.0.0.1:{sitl.frame_socket_port}",
+         "--scenario", str(scen), "--segmenter", str(token_segmenter), "--link-timeout", "3"],
+        cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    assert p.stdout is not None
+    for line in p.stdout:  # connected and waiting for the trigger
+        if "waiting for 'land now'" in line:
+            break
+    sitl.stop()
+    _, err = p.communicate(timeout=60)
+    assert p.returncode == 1 and "FAILED: lost the vehicle: no telemetry for" in err, err
 
 
 def test_ctrl_c_is_a_clean_exit(token_segmenter: Path) -> None:
