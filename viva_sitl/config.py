@@ -8,6 +8,9 @@
     [mavlink]  MavlinkConfig fields                            -> viva_sitl.mavlink.MavlinkConfig
     [video]    VideoConfig fields                              -> viva_sitl.video.VideoConfig
     [params]   PX4 parameter overrides (NAME = number), checked against the PX4 parameter set at load
+    [perception.sr]  method (none|bicubic|fsrcnn|espcn|edsr), model_path, scale, min_magnification
+                                                               -> viva_sitl.perception.SRConfig (the simulator's
+                                                                  super-resolution; the model loads at start-up)
 
 Unknown tables or keys are errors with the exact key named: a typo never silently falls back to a default.
 """
@@ -30,6 +33,7 @@ from viva_sitl.camera import CameraParams
 from viva_sitl.dynamics import EavParams
 from viva_sitl.geo import GeoOrigin, parse_home
 from viva_sitl.mavlink import MavlinkConfig
+from viva_sitl.perception.sr import SRConfig
 from viva_sitl.video import VideoConfig
 
 T = TypeVar("T")
@@ -115,6 +119,15 @@ def build(cls: type[T], table: dict[str, Any], where: str = "") -> T:
 
 
 @dataclass(frozen=True)
+class PerceptionConfig:
+    """`[perception]`: what the simulator itself runs of the perception extra (only super-resolution)."""
+
+    # low flight: render from a super-resolved footage crop when the VAC magnifies the footage more than
+    # sr.min_magnification VAC px per footage px (method none: off, the default)
+    sr: SRConfig = field(default_factory=SRConfig)
+
+
+@dataclass(frozen=True)
 class SimConfig:
     """Everything a run needs. Defaults: synthetic field, 250 Hz physics, 640x480 VAC, PX4 SITL ports."""
 
@@ -135,6 +148,7 @@ class SimConfig:
     mavlink: MavlinkConfig = field(default_factory=MavlinkConfig)
     video: VideoConfig = field(default_factory=VideoConfig)
     params: tuple[tuple[str, float], ...] = ()  # PX4 parameter overrides
+    perception: PerceptionConfig = field(default_factory=PerceptionConfig)
 
     def __post_init__(self) -> None:
         if not (self.speed > 0.0 and math.isfinite(self.speed)):
@@ -164,7 +178,7 @@ class SimConfig:
 
     @classmethod
     def from_dict(cls, data: dict[str, Any], where: str = "config") -> SimConfig:
-        sections = {"physics", "camera", "mavlink", "video", "params"}
+        sections = {"physics", "camera", "mavlink", "video", "params", "perception"}
         unknown = set(data) - sections - {"sim"}
         if unknown:
             raise ConfigError(

@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
+import math
 import os
 import sys
 from pathlib import Path
@@ -53,6 +55,16 @@ def build_parser() -> argparse.ArgumentParser:
         "--trial", type=_nonneg_int, action="append", help="run only trial K (repeatable): reproduce it"
     )
     r.add_argument("--video", action="store_true", help="also record each trial's VAC video (vac.mp4)")
+    r.add_argument(
+        "--frames", action="store_true",
+        help="external pilots: render the VAC and serve the frame-and-pose socket ({frame_socket}), as the "
+        "spec's trials.frames = true; the scenarios do not change",
+    )  # fmt: skip
+    r.add_argument(
+        "--speed", type=float,
+        help="external pilots: the `viva-sitl run --speed` factor (default: the spec's trials.speed); a slow "
+        "pilot (e.g. CPU vision) needs a lower one; the scenarios do not change",
+    )  # fmt: skip
     r.add_argument("--no-progress", action="store_true", help="no progress bar")
     from viva_sitl.cli import _port
     from viva_sitl.cliargs import positive_float
@@ -147,6 +159,12 @@ def _run(args: argparse.Namespace) -> int:
     from viva_sitl.evaluation.spec import load_spec
 
     spec = load_spec(args.spec)
+    if args.frames:
+        spec = dataclasses.replace(spec, frames=True)
+    if args.speed is not None:
+        if not (math.isfinite(args.speed) and args.speed > 0):
+            raise ValueError(f"--speed must be a positive number, got {args.speed:g}")
+        spec = dataclasses.replace(spec, speed=args.speed)
     pilot = args.pilot or spec.pilot
     safe = "".join(ch if ch.isalnum() or ch in "-_" else "_" for ch in pilot.split("/")[-1])[:40]
     name = f"{spec.name}-{safe}" + ("-trial-" + "-".join(map(str, args.trial)) if args.trial else "")

@@ -1,6 +1,7 @@
 """YOLO detection on VAC frames (extra `perception-yolo`: ultralytics + a torchvision matching torch).
 
     det = Detector("runs/det/train/weights/best.pt")          # any ultralytics detection weights: .pt or .onnx
+                                                               # (.onnx: extra perception-onnx, onnxruntime)
     for d in det.detect(frame_bgr): print(d.name, d.confidence, d.box_px)
     ground = det.on_ground(dets, meta=frame_meta)               # (k, 2) north/east of each box centre
     best, metrics = train_detector("data/songdo/data.yaml", epochs=30, imgsz=640)   # ultralytics' own trainer
@@ -12,6 +13,7 @@ imported so it never tries to reach the network.
 
 from __future__ import annotations
 
+import importlib.util
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -22,7 +24,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from viva_sitl.camera import CameraParams
 from viva_sitl.camera.projection import ground_to_image_homography
-from viva_sitl.perception.errors import INSTALL_HINT_YOLO, PerceptionError
+from viva_sitl.perception.errors import INSTALL_HINT_ONNX, INSTALL_HINT_YOLO, PerceptionError
 from viva_sitl.perception.geometry import ground_homography_from_meta, image_to_ground
 
 U8 = NDArray[np.uint8]
@@ -75,6 +77,11 @@ class Detector:
         if path.suffix.lower() not in WEIGHT_SUFFIXES:
             raise PerceptionError(
                 f"detector weights {path} must be a .pt or .onnx file, got {path.suffix or 'none'}"
+            )
+        if path.suffix.lower() == ".onnx" and importlib.util.find_spec("onnxruntime") is None:
+            # ultralytics would only fail at the first frame (after trying to pip-install it)
+            raise PerceptionError(
+                f"ONNX weights {path.name} need onnxruntime, which is not installed: {INSTALL_HINT_ONNX}"
             )
         yolo = require_ultralytics()
         try:

@@ -6,6 +6,7 @@ from types import ModuleType
 
 INSTALL_HINT = "pip install 'viva-sitl[perception]'"
 INSTALL_HINT_YOLO = "pip install 'viva-sitl[perception-yolo]'"
+INSTALL_HINT_ONNX = "pip install 'viva-sitl[perception-onnx]'"
 
 
 class PerceptionError(ValueError):

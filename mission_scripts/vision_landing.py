@@ -1,0 +1,695 @@
+#!/usr/bin/env python3
+"""Vision landing companion: on "land now", look, pick the lowest-risk spot in view, fly there in offboard, land.
+
+MAVSDK-Python 4.x (native asyncio API) for the flight, the frame-and-pose socket (ZeroMQ, `viva_sitl.video`) for
+the camera, and the perception extra (`pip install 'viva-sitl[perception]'`) for the eyes:
+
+- the risk U-Net (`--segmenter unet.pt`, from `viva-sitl perception train-segmenter`): risk level 1..5 per pixel,
+  mapped onto the ground through the frame's pose (`Segmenter.on_ground`);
+- the YOLO detector (`--detector best.pt|.onnx`, extra perception-yolo): people and vehicles, each put on the ground
+  and surrounded by a keep-out disc (`--person-buffer-m`, `--vehicle-buffer-m`) of level 5.
+
+Either model may be left out (the other one is used alone, and the script says so); at least one is needed. It never
+reads ground truth: only the camera image, the pose the frame socket sends with it, and MAVLink telemetry.
+
+The landing: OFFBOARD position setpoints (NED, streamed at 20 Hz by their own task) hold the vehicle while it looks;
+the spot is the seen cell within `--search-radius-m` with the lowest risk level in a `--margin-m` disc around it,
+then the largest clearance from level-4/5 ground (up to `--clearance-cap-m`), then the shortest flight. It flies
+there at its altitude, then descends over it to `--approach-alt`; every new frame on the way re-checks the spot and
+re-plans from the current view when it turns risky (a person walks in). At `--approach-alt` it hands over to
+AUTO.LAND and waits for touchdown and the disarm.
+
+The trigger:
+- in landing trials (`viva-sitl trials run SPEC --frames --pilot "{python} mission_scripts/vision_landing.py ..."`)
+  the scenario file in VIVA_SITL_SCENARIO: a ground start takes off to the scenario's altitude first; "land now"
+  is the "Emergency: land now" STATUSTEXT, or the frame clock reaching the scenario's land_at_s;
+- by hand: `--now` (land at once), else it waits for that STATUSTEXT.
+
+Connection: the MAVSDK URL (argument, else VIVA_SITL_MAVSDK_URL, else PX4's udpin://0.0.0.0:14540) and the frame
+socket (`--frames`, else VIVA_SITL_FRAME_SOCKET, else tcp://127.0.0.1:5700), as `viva-sitl trials` passes them.
+
+    viva-sitl run --footage synthetic --pose 10,-20,25 &         # any airborne vehicle
+    python mission_scripts/vision_landing.py --now --segmenter unet.pt [--detector best.pt]
+
+Exit status 0 landed (RESULT line), 1 failed (FAILED: line), 2 bad arguments or weights (one line), 130 Ctrl-C.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import contextlib
+import json
+import math
+import os
+import sys
+import time
+from collections.abc import AsyncGenerator, Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, NoReturn
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+SETPOINT_PERIOD_S = 0.05  # 20 Hz, MAVSDK's own re-send rate; PX4 needs > 2 Hz
+LAND_NOW_TEXT = "land now"  # the trials' STATUSTEXT is "Emergency: land now"
+PERSON_NAMES = {
+    "person",
+    "bicycle",
+    "moving object",
+}  # a derived "moving object" counts as a person (careful)
+VEHICLE_NAMES = {"car", "bus", "truck"}
+
+
+class MissionFailed(Exception):
+    """A check failed or a command was refused: the message is what the user sees."""
+
+
+def log(text: str) -> None:
+    print(f"[{time.strftime('%H:%M:%S')}] {text}", flush=True)
+
+
+# ---------------------------------------------------------------------------------------------------- perception
+
+
+@dataclass(frozen=True)
+class PlanConfig:
+    cell_m: float = 0.5  # ground grid cell
+    margin_m: float = 2.0  # landing precision: the spot's level is the worst within this disc
+    clearance_cap_m: float = 15.0  # clearance from level >= 4 beyond this does not matter
+    search_radius_m: float = 40.0  # reachable: at most this far from where it is
+    person_buffer_m: float = 6.0  # keep-out disc (level 5) around a detected person
+    vehicle_buffer_m: float = 4.0  # ... around a detected vehicle
+    accept_level: int = 2  # a spot whose level rises above max(planned, this) is re-planned
+
+
+@dataclass(frozen=True)
+class Spot:
+    north_m: float
+    east_m: float
+    level: int  # worst predicted level within margin_m
+    clearance_m: float  # distance to the nearest predicted level >= 4 (capped)
+    distance_m: float  # from where it looked
+
+
+@dataclass
+class RiskView:
+    """Predicted levels on a north/east grid (0 = not seen) and what went into them."""
+
+    levels: NDArray[np.uint8]
+    north0_m: float
+    east0_m: float
+    cell_m: float
+    people: int
+    vehicles: int
+    sim_time_s: float
+
+    def cell_of(self, north_m: float, east_m: float) -> tuple[int, int]:
+        return round((north_m - self.north0_m) / self.cell_m), round((east_m - self.east0_m) / self.cell_m)
+
+
+class Eyes:
+    """The segmenter and/or detector, turning one frame + its pose into a RiskView."""
+
+    def __init__(self, segmenter: Any | None, detector: Any | None, cfg: PlanConfig) -> None:
+        self.segmenter, self.detector, self.cfg = segmenter, detector, cfg
+
+    def look(self, image_bgr: NDArray[np.uint8], meta: dict[str, Any]) -> RiskView:
+        from viva_sitl.perception.detect import Detector
+        from viva_sitl.perception.segment import Segmenter
+
+        cfg = self.cfg
+        if self.segmenter is not None:
+            img_levels = cv2.medianBlur(self.segmenter.predict(image_bgr), 5)  # speckle is not ground
+        else:  # detector only: every seen pixel is open ground unless a detection says otherwise
+            img_levels = np.ones(image_bgr.shape[:2], np.uint8)
+        ground = Segmenter.on_ground(img_levels, cell_m=cfg.cell_m, meta=meta)
+        levels = ground.levels.copy()
+        people = vehicles = 0
+        if self.detector is not None:
+            dets = self.detector.detect(image_bgr)
+            ne = Detector.on_ground(dets, meta=meta)
+            rows, cols = levels.shape
+            nn, ee = np.meshgrid(
+                ground.north0_m + cfg.cell_m * np.arange(rows),
+                ground.east0_m + cfg.cell_m * np.arange(cols),
+                indexing="ij",
+            )
+            for d, (n, e) in zip(dets, ne, strict=True):
+                name = d.name.lower()
+                if not (math.isfinite(n) and math.isfinite(e)):
+                    continue
+                if name in PERSON_NAMES:
+                    people, r = people + 1, cfg.person_buffer_m
+                elif name in VEHICLE_NAMES:
+                    vehicles, r = vehicles + 1, cfg.vehicle_buffer_m
+                else:
+                    continue
+                levels[(nn - n) ** 2 + (ee - e) ** 2 <= r * r] = 5
+        return RiskView(levels, ground.north0_m, ground.east0_m, cfg.cell_m, people, vehicles,
+                        float(meta.get("sim_time_s", math.nan)))  # fmt: skip
+
+
+def _disc(radius_cells: int) -> NDArray[np.uint8]:
+    k = 2 * radius_cells + 1
+    return np.asarray(cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (k, k)), np.uint8)
+
+
+def spot_maps(view: RiskView, cfg: PlanConfig) -> tuple[NDArray[np.uint8], NDArray[np.float32], NDArray[np.float32]]:  # fmt: skip
+    """(worst level within margin_m, clearance from level >= 4 in m, distance to unseen ground in m) per cell."""
+    lv = view.levels
+    r = max(1, round(cfg.margin_m / view.cell_m))
+    worst = np.asarray(cv2.dilate(lv, _disc(r)), np.uint8)
+    pad = 1  # outside the grid is unseen
+    safe = np.pad((lv < 4).astype(np.uint8), pad, constant_values=1)
+    seen = np.pad((lv > 0).astype(np.uint8), pad, constant_values=0)
+    clear = cv2.distanceTransform(safe, cv2.DIST_L2, 5)[pad:-pad, pad:-pad] * view.cell_m
+    edge = cv2.distanceTransform(seen, cv2.DIST_L2, 5)[pad:-pad, pad:-pad] * view.cell_m
+    return worst, np.asarray(clear, np.float32), np.asarray(edge, np.float32)
+
+
+def choose_spot(view: RiskView, here_ne: tuple[float, float], cfg: PlanConfig) -> Spot | None:
+    """The best seen spot within reach (None: nothing seen far enough from the edge of the view)."""
+    worst, clear, edge = spot_maps(view, cfg)
+    rows, cols = view.levels.shape
+    n = view.north0_m + view.cell_m * np.arange(rows)[:, None] + np.zeros((1, cols))
+    e = view.east0_m + view.cell_m * np.arange(cols)[None, :] + np.zeros((rows, 1))
+    dist = np.hypot(n - here_ne[0], e - here_ne[1])
+    ok = (view.levels > 0) & (edge >= cfg.margin_m) & (dist <= cfg.search_radius_m)
+    if not ok.any():
+        return None
+    w, c, d = worst[ok], np.minimum(clear[ok], cfg.clearance_cap_m), dist[ok]
+    best = int(np.lexsort((d, -np.round(c), w))[0])  # last key first: level, clearance (1 m steps), distance
+    return Spot(float(n[ok][best]), float(e[ok][best]), int(w[best]), float(c[best]), float(d[best]))
+
+
+def check_spot(view: RiskView, spot: Spot, cfg: PlanConfig) -> tuple[int, float] | None:
+    """(worst level within margin, clearance) at the spot in a new view; None when the spot is not in it."""
+    r, c = view.cell_of(spot.north_m, spot.east_m)
+    rows, cols = view.levels.shape
+    if not (0 <= r < rows and 0 <= c < cols) or view.levels[r, c] == 0:
+        return None
+    worst, clear, _ = spot_maps(view, cfg)
+    return int(worst[r, c]), float(min(clear[r, c], cfg.clearance_cap_m))
+
+
+def load_models(args: argparse.Namespace) -> tuple[Any | None, Any | None]:
+    """(segmenter, detector); PerceptionError (one line) for a missing or foreign file or a missing extra."""
+    from viva_sitl.perception.errors import PerceptionError
+
+    if not args.segmenter and not args.detector:
+        raise PerceptionError("no model: give --segmenter PATH (risk U-Net) and/or --detector PATH (YOLO)")
+    seg = det = None
+    if args.segmenter:
+        from viva_sitl.perception.errors import require_torch
+
+        torch = require_torch()
+        torch.set_num_threads(args.threads)
+        from viva_sitl.perception.segment import Segmenter
+
+        seg = Segmenter.load(args.segmenter)
+    if args.detector:
+        from viva_sitl.perception.detect import Detector
+
+        det = Detector(args.detector, conf=args.conf, imgsz=args.imgsz)
+    if seg is None:
+        log("no --segmenter: ground risk from detections only (seen ground counts as level 1)")
+    if det is None:
+        log(
+            "no --detector: ground risk from the segmenter only (people/vehicles as it sees them, no keep-out)"
+        )
+    return seg, det
+
+
+# ---------------------------------------------------------------------------------------------------- flight
+
+
+class Tracker:
+    """The latest telemetry, kept fresh by background subscriptions; also the "land now" STATUSTEXT."""
+
+    def __init__(self, telemetry: Any, link_timeout_s: float) -> None:
+        self._telemetry = telemetry
+        self.values: dict[str, Any] = {}
+        self.land_now = False
+        self.last_update = time.monotonic()
+        self.link_timeout_s = link_timeout_s
+        self._changed = asyncio.Event()
+        self._tasks: list[asyncio.Task[None]] = []
+
+    async def _follow(self, name: str, stream: AsyncGenerator[Any, None]) -> None:
+        async with contextlib.aclosing(stream):
+            async for value in stream:
+                if name == "text":
+                    if LAND_NOW_TEXT in value.text.lower():
+                        self.land_now = True
+                else:
+                    self.values[name] = value
+                    self.last_update = time.monotonic()
+                self._changed.set()
+
+    async def start(self, timeout_s: float) -> None:
+        t = self._telemetry
+        for name, stream in (
+            ("pv", t.subscribe_position_velocity_ned()),
+            ("euler", t.subscribe_attitude_euler()),
+            ("mode", t.subscribe_flight_mode()),
+            ("landed", t.subscribe_landed_state()),
+            ("armed", t.subscribe_armed()),
+            ("text", t.subscribe_status_text()),
+        ):
+            self._tasks.append(asyncio.create_task(self._follow(name, stream)))
+        await self.wait_until(lambda: len(self.values) == 5, timeout_s, "first telemetry of every stream")
+
+    async def stop(self) -> None:
+        for task in self._tasks:
+            task.cancel()
+        await asyncio.gather(*self._tasks, return_exceptions=True)
+
+    def check_link(self) -> None:
+        quiet = time.monotonic() - self.last_update
+        if quiet > self.link_timeout_s:
+            raise MissionFailed(f"lost the vehicle: no telemetry for {quiet:.0f} s (disconnected?)")
+
+    async def wait_until(self, predicate: Callable[[], bool], timeout_s: float, what: str) -> None:
+        deadline = asyncio.get_running_loop().time() + timeout_s
+        while not predicate():
+            remaining = deadline - asyncio.get_running_loop().time()
+            if remaining <= 0:
+                raise MissionFailed(f"timed out after {timeout_s:.0f} s waiting for {what}")
+            if self.values:
+                self.check_link()
+            self._changed.clear()
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(self._changed.wait(), min(remaining, 1.0))
+
+    @property
+    def ned(self) -> tuple[float, float, float]:
+        p = self.values["pv"].position
+        return p.north_m, p.east_m, p.down_m
+
+    @property
+    def vel(self) -> tuple[float, float, float]:
+        v = self.values["pv"].velocity
+        return v.north_m_s, v.east_m_s, v.down_m_s
+
+    @property
+    def alt_m(self) -> float:
+        return -self.ned[2]
+
+
+class Camera:
+    """The frame-and-pose socket, read off the event loop (the newest frame only)."""
+
+    def __init__(self, endpoint: str) -> None:
+        from viva_sitl.video import FrameClient
+
+        self.endpoint = endpoint
+        self.client = FrameClient(endpoint, latest_only=True)
+        self.last_sim_time_s = -math.inf
+
+    async def fresh(self, timeout_s: float, after_sim_s: float = -math.inf) -> tuple[NDArray[np.uint8], dict[str, Any]]:  # fmt: skip
+        """The newest frame rendered after `after_sim_s` (sim time); MissionFailed after timeout_s wall."""
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            item = await asyncio.to_thread(self.client.receive, 0.25)
+            if item is None:
+                continue
+            image, meta = item
+            t = float(meta.get("sim_time_s", 0.0))
+            self.last_sim_time_s = max(self.last_sim_time_s, t)
+            if t > after_sim_s:
+                return image, meta
+        raise MissionFailed(
+            f"no camera frame on {self.endpoint} within {timeout_s:.0f} s (is the frame socket on? "
+            "`viva-sitl run` serves it unless --no-video; `viva-sitl trials run` needs --frames or trials.frames)"
+        )
+
+    def close(self) -> None:
+        self.client.close()
+
+
+class Setpoint:
+    """The offboard position setpoint, re-sent at 20 Hz by its own task whatever the planner is doing."""
+
+    def __init__(self, offboard: Any, yaw_deg: float) -> None:
+        from mavsdk.asyncio.plugins.offboard import PositionNedYaw
+
+        self._cls = PositionNedYaw
+        self.offboard = offboard
+        self.yaw_deg = yaw_deg
+        self.target: tuple[float, float, float] | None = None
+        self._task: asyncio.Task[None] | None = None
+
+    async def set(self, north_m: float, east_m: float, down_m: float) -> None:
+        self.target = (north_m, east_m, down_m)
+        await self.offboard.set_position_ned(self._cls(north_m, east_m, down_m, self.yaw_deg))
+
+    async def _run(self) -> None:
+        while True:
+            if self.target is not None:
+                with contextlib.suppress(Exception):  # a refused re-send is seen by the mode check
+                    await self.offboard.set_position_ned(self._cls(*self.target, self.yaw_deg))
+            await asyncio.sleep(SETPOINT_PERIOD_S)
+
+    def start(self) -> None:
+        self._task = asyncio.create_task(self._run())
+
+    async def stop(self) -> None:
+        if self._task is not None:
+            self._task.cancel()
+            await asyncio.gather(self._task, return_exceptions=True)
+            self._task = None
+
+
+class Companion:
+    def __init__(self, args: argparse.Namespace, eyes: Eyes, cfg: PlanConfig, scenario: dict[str, Any] | None) -> None:  # fmt: skip
+        self.args, self.eyes, self.cfg, self.scenario = args, eyes, cfg, scenario
+        self.replans = 0
+        self.looks = 0
+
+    async def look(self, cam: Camera, tr: Tracker, after_sim_s: float) -> RiskView:
+        from viva_sitl.perception.errors import PerceptionError
+
+        deadline = time.monotonic() + self.args.frame_timeout
+        while True:
+            tr.check_link()
+            image, meta = await cam.fresh(max(0.5, deadline - time.monotonic()), after_sim_s)
+            try:
+                view = await asyncio.to_thread(self.eyes.look, image, meta)
+            except PerceptionError as exc:  # e.g. tilted so far (braking) that the view reaches the horizon
+                if time.monotonic() > deadline:
+                    raise MissionFailed(
+                        f"no usable frame for {self.args.frame_timeout:.0f} s: {exc}"
+                    ) from None
+                after_sim_s = float(meta.get("sim_time_s", after_sim_s))
+                continue
+            self.looks += 1
+            return view
+
+    async def wait_trigger(self, tr: Tracker, cam: Camera, mode_name: Callable[[], str]) -> None:
+        land_at = None if self.scenario is None else self.scenario.get("land_at_s")
+        if self.args.now:
+            log("--now: landing at once")
+            return
+        log("waiting for 'land now' (STATUSTEXT" + (f", or frame clock {land_at:g} s)" if land_at else ")"))
+        while not tr.land_now:
+            tr.check_link()
+            if land_at is not None:
+                with contextlib.suppress(MissionFailed):
+                    await cam.fresh(0.3)
+                if cam.last_sim_time_s >= float(land_at):
+                    log(f"land-now time reached on the frame clock ({cam.last_sim_time_s:.1f} s)")
+                    return
+            else:
+                await asyncio.sleep(0.1)
+        log(f"'land now' received (mode {mode_name()})")
+
+    async def land(self, tr: Tracker, cam: Camera, action: Any, offboard: Any) -> dict[str, Any]:
+        from mavsdk.asyncio.plugins.offboard import OffboardError
+        from mavsdk.asyncio.plugins.telemetry import FlightMode
+
+        args, cfg = self.args, self.cfg
+        sp = Setpoint(offboard, float(tr.values["euler"].yaw_deg))
+        n0, e0, d0 = tr.ned
+        await sp.set(n0, e0, d0)  # hold here first: PX4 wants a setpoint stream (> 2 Hz) before OFFBOARD
+        sp.start()
+        for attempt in range(1, 6):
+            # a few setpoints out first (wall time: on a loaded machine the stream needs it)
+            await asyncio.sleep(0.5)
+            try:
+                await offboard.start()
+                break
+            except OffboardError as exc:
+                if attempt == 5:
+                    await sp.stop()
+                    raise MissionFailed(f"offboard refused: {exc}") from exc
+                log(f"offboard start: {exc}; retrying")
+        try:
+            await tr.wait_until(
+                lambda: tr.values["mode"] == FlightMode.OFFBOARD, args.step_timeout, "OFFBOARD"
+            )
+            log(f"offboard: holding at ({n0:.1f}, {e0:.1f}) m, {-d0:.1f} m up; looking")
+            look_down = d0
+            t_sim = cam.last_sim_time_s
+            view = await self.look(cam, tr, t_sim)
+            spot = self._plan(view, tr)
+            cruise = True
+            strikes = 0
+            while True:
+                if tr.values["mode"] != FlightMode.OFFBOARD:
+                    raise MissionFailed(f"left OFFBOARD (now {tr.values['mode'].name}) while landing")
+                n, e, d = tr.ned
+                horiz = math.hypot(n - spot.north_m, e - spot.east_m)
+                if cruise and horiz < args.arrive_radius and math.hypot(*tr.vel[:2]) < 0.5:
+                    cruise = False
+                    log(f"over the spot at {-d:.1f} m: descending to {args.approach_alt:g} m, re-checking")
+                down = look_down if cruise else -args.approach_alt
+                if sp.target != (spot.north_m, spot.east_m, down):
+                    await sp.set(spot.north_m, spot.east_m, down)
+                if not cruise and -d <= args.approach_alt + 0.3 and horiz < args.arrive_radius:
+                    break
+                view = await self.look(cam, tr, view.sim_time_s)
+                now = check_spot(view, spot, cfg)
+                if now is None:
+                    continue  # not in this view (yet): keep going
+                level, clear = now
+                risky = level > max(spot.level, cfg.accept_level)
+                strikes = strikes + 1 if risky else 0
+                # two looks in a row (not one noisy frame), and at most --max-replans times
+                if strikes >= 2 and self.replans < args.max_replans:
+                    strikes = 0
+                    self.replans += 1
+                    log(f"spot ({spot.north_m:.1f}, {spot.east_m:.1f}) now level {level} (was {spot.level}): "
+                        f"re-planning ({self.replans}/{args.max_replans})")  # fmt: skip
+                    new = choose_spot(view, (n, e), cfg)
+                    if new is None or new.level > cfg.accept_level and -d < -look_down - 1.0:
+                        log(
+                            f"nothing acceptable in the low view: climbing back to {-look_down:.1f} m to look"
+                        )
+                        await sp.set(n, e, look_down)
+                        await tr.wait_until(lambda d0=look_down: abs(tr.ned[2] - d0) < 1.0, args.step_timeout,
+                                            "the climb back to the look altitude")  # fmt: skip
+                        view = await self.look(cam, tr, view.sim_time_s)
+                        new = choose_spot(view, tr.ned[:2], cfg) or new
+                    if new is None:
+                        raise MissionFailed("no ground seen to land on")
+                    spot = self._log_spot(new, view)
+                    if self.replans == args.max_replans:  # an emergency landing must end on the ground
+                        log(f"{self.replans} re-plans: committing to this spot (no more re-plans)")
+                    cruise = True
+                    look_down = tr.ned[2]  # fly the new leg at the current height
+            final = check_spot(view, spot, cfg)
+            log(f"at {tr.alt_m:.1f} m over the spot (level now {final[0] if final else '?'}): AUTO.LAND")
+            await self._command_land(tr, action)  # the setpoints keep flowing until LAND has taken over
+        finally:
+            await sp.stop()
+        from mavsdk.asyncio.plugins.telemetry import LandedState
+
+        await tr.wait_until(
+            lambda: tr.values["landed"] == LandedState.ON_GROUND, args.step_timeout, "touchdown"
+        )
+        await tr.wait_until(lambda: not tr.values["armed"], args.step_timeout, "auto-disarm after landing")
+        n, e, _ = tr.ned
+        log(f"landed and disarmed at ({n:.2f}, {e:.2f}) m")
+        return {
+            "touchdown_north_m": round(n, 2), "touchdown_east_m": round(e, 2),
+            "spot_north_m": round(spot.north_m, 2), "spot_east_m": round(spot.east_m, 2),
+            "spot_level": spot.level, "replans": self.replans, "looks": self.looks,
+        }  # fmt: skip
+
+    async def _command_land(self, tr: Tracker, action: Any) -> None:
+        """AUTO.LAND; a lost COMMAND_ACK (a loaded link) is retried, and a mode already LAND counts as done."""
+        from mavsdk.asyncio.plugins.action import ActionError
+        from mavsdk.asyncio.plugins.telemetry import FlightMode
+
+        for attempt in range(1, 4):
+            try:
+                await action.land()
+                return
+            except ActionError as exc:
+                with contextlib.suppress(MissionFailed):
+                    await tr.wait_until(lambda: tr.values["mode"] == FlightMode.LAND, 3.0, "LAND")
+                if tr.values["mode"] == FlightMode.LAND:
+                    return
+                if attempt == 3:
+                    raise MissionFailed(f"land refused: {exc}") from exc
+                log(f"land: {exc}; retrying")
+
+    def _plan(self, view: RiskView, tr: Tracker) -> Spot:
+        n, e, _ = tr.ned
+        spot = choose_spot(view, (n, e), self.cfg)
+        if spot is None:
+            raise MissionFailed("no ground seen far enough from the edge of the view to land on")
+        return self._log_spot(spot, view)
+
+    def _log_spot(self, spot: Spot, view: RiskView) -> Spot:
+        seen = view.levels[view.levels > 0]
+        hist = " ".join(
+            f"L{k}:{100 * float(np.mean(seen == k)):.0f}%" for k in range(1, 6) if np.any(seen == k)
+        )
+        log(f"view: {hist}; {view.people} people, {view.vehicles} vehicles detected -> spot "
+            f"({spot.north_m:.1f}, {spot.east_m:.1f}) level {spot.level}, clearance {spot.clearance_m:.1f} m, "
+            f"{spot.distance_m:.1f} m away")  # fmt: skip
+        return spot
+
+
+async def takeoff(tr: Tracker, telemetry: Any, action: Any, altitude_m: float, step_s: float) -> None:
+    from mavsdk.asyncio.plugins.action import ActionError
+
+    async def healthy() -> None:
+        async with contextlib.aclosing(telemetry.subscribe_health()) as stream:
+            async for h in stream:
+                if h.is_global_position_ok and h.is_home_position_ok and h.is_armable:
+                    return
+
+    try:
+        await asyncio.wait_for(healthy(), step_s)
+    except TimeoutError:
+        raise MissionFailed(
+            f"timed out after {step_s:.0f} s waiting for health (position, home, armable)"
+        ) from None
+    try:
+        await action.set_takeoff_altitude(altitude_m)
+        await action.arm()
+        await action.takeoff()
+    except ActionError as exc:
+        raise MissionFailed(f"command refused: {exc}") from exc
+    log(f"armed, taking off to {altitude_m:.1f} m")
+    await tr.wait_until(lambda: tr.alt_m >= altitude_m - 0.5, step_s, f"altitude {altitude_m - 0.5:.1f} m")
+
+
+async def fly(args: argparse.Namespace, eyes: Eyes, cfg: PlanConfig, scenario: dict[str, Any] | None) -> dict[str, Any]:  # fmt: skip
+    from mavsdk.asyncio import ComponentType, Configuration, Mavsdk
+    from mavsdk.asyncio.plugins.action import ActionAsync
+    from mavsdk.asyncio.plugins.offboard import OffboardAsync
+    from mavsdk.asyncio.plugins.telemetry import LandedState, TelemetryAsync
+
+    cam = Camera(args.frames)
+    try:
+        config = Configuration.create_with_component_type(ComponentType.COMPANION_COMPUTER)
+        async with Mavsdk(config) as mavsdk:
+            log(f"connecting to {args.url}; camera {args.frames}")
+            await mavsdk.add_any_connection(args.url)
+            system = await mavsdk.first_autopilot(timeout_s=args.step_timeout)
+            if system is None:
+                raise MissionFailed(f"no autopilot heartbeat on {args.url} within {args.step_timeout:.0f} s")
+            telemetry, action, offboard = TelemetryAsync(system), ActionAsync(system), OffboardAsync(system)
+            tr = Tracker(telemetry, args.link_timeout)
+            await tr.start(args.step_timeout)
+            try:
+                on_ground = tr.values["landed"] == LandedState.ON_GROUND or not tr.values["armed"]
+                if on_ground:
+                    if scenario is None or scenario.get("start") != "ground":
+                        raise MissionFailed("the vehicle is on the ground: nothing to land (a ground-start "
+                                            "scenario file makes it take off first)")  # fmt: skip
+                    await takeoff(tr, telemetry, action, float(scenario["altitude_m"]), args.step_timeout)
+                comp = Companion(args, eyes, cfg, scenario)
+                await comp.wait_trigger(tr, cam, lambda: str(tr.values["mode"].name))
+                return await comp.land(tr, cam, action, offboard)
+            finally:
+                await tr.stop()
+    finally:
+        cam.close()
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message: str) -> NoReturn:  # one line, not the usage block
+        self.exit(2, f"vision_landing: error: {message} (see --help)\n")
+
+
+def _env(name: str, default: str) -> str:
+    return os.environ.get(name) or default
+
+
+def main() -> int:
+    parser = _Parser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("url", nargs="?", default=_env("VIVA_SITL_MAVSDK_URL", "udpin://0.0.0.0:14540"),
+                        help="MAVSDK connection URL (default: $VIVA_SITL_MAVSDK_URL, else udpin://0.0.0.0:14540)")  # fmt: skip
+    parser.add_argument("--frames", default=_env("VIVA_SITL_FRAME_SOCKET", "tcp://127.0.0.1:5700"),
+                        help="frame-and-pose socket (default: $VIVA_SITL_FRAME_SOCKET, else tcp://127.0.0.1:5700)")  # fmt: skip
+    parser.add_argument("--scenario", default=os.environ.get("VIVA_SITL_SCENARIO"),
+                        help="trial scenario file (default: $VIVA_SITL_SCENARIO): start and land-now time")  # fmt: skip
+    parser.add_argument("--now", action="store_true", help="land at once (no trials: the by-hand trigger)")
+    parser.add_argument("--segmenter", help="risk U-Net checkpoint (viva-sitl perception train-segmenter)")
+    parser.add_argument("--detector", help="YOLO detection weights, .pt or .onnx (extra perception-yolo)")
+    parser.add_argument("--conf", type=float, default=0.25, help="detector confidence threshold")
+    parser.add_argument("--imgsz", type=int, default=640, help="detector input size")
+    parser.add_argument("--threads", type=int, default=1, help="torch CPU threads for the segmenter")
+    d = PlanConfig()
+    parser.add_argument("--margin-m", type=float, default=d.margin_m, help="landing precision disc, m")
+    parser.add_argument(
+        "--search-radius-m", type=float, default=d.search_radius_m, help="how far it may go, m"
+    )
+    parser.add_argument("--person-buffer-m", type=float, default=d.person_buffer_m, help="keep-out, m")
+    parser.add_argument("--vehicle-buffer-m", type=float, default=d.vehicle_buffer_m, help="keep-out, m")
+    parser.add_argument("--approach-alt", type=float, default=3.0, help="hand over to AUTO.LAND here, m")
+    parser.add_argument(
+        "--arrive-radius", type=float, default=0.7, help="horizontal radius 'over the spot', m"
+    )
+    parser.add_argument("--max-replans", type=int, default=6)
+    parser.add_argument("--frame-timeout", type=float, default=10.0, help="wall s to wait for a camera frame")
+    parser.add_argument("--link-timeout", type=float, default=5.0, help="wall s without telemetry = lost")
+    parser.add_argument("--step-timeout", type=float, default=60.0, help="limit for each wait, wall s")
+    parser.add_argument("--timeout", type=float, default=300.0, help="whole-flight limit, wall s")
+    args = parser.parse_args()
+    nums = (
+        args.margin_m,
+        args.search_radius_m,
+        args.person_buffer_m,
+        args.vehicle_buffer_m,
+        args.approach_alt,
+    )
+    if not all(math.isfinite(v) and v > 0 for v in nums):
+        parser.error("--margin-m, --search-radius-m, the buffers and --approach-alt must be finite and > 0")
+    scenario = None
+    if args.scenario:
+        try:
+            scenario = json.loads(Path(args.scenario).read_text())
+            if not isinstance(scenario, dict) or "land_at_s" not in scenario:
+                raise ValueError("no land_at_s: not a vivasitl.scenario.v1 file")
+        except (OSError, ValueError) as exc:
+            print(
+                f"vision_landing: cannot read the scenario {args.scenario}: {exc}",
+                file=sys.stderr,
+                flush=True,
+            )
+            return 2
+    cfg = PlanConfig(margin_m=args.margin_m, search_radius_m=args.search_radius_m,
+                     person_buffer_m=args.person_buffer_m, vehicle_buffer_m=args.vehicle_buffer_m)  # fmt: skip
+    try:
+        from viva_sitl.perception.errors import PerceptionError
+    except ImportError as exc:
+        print(f"vision_landing: viva_sitl is not importable ({exc}): pip install 'viva-sitl[perception]'",
+              file=sys.stderr)  # fmt: skip
+        return 2
+    try:
+        seg, det = load_models(args)
+    except PerceptionError as exc:
+        print(f"vision_landing: {exc}", file=sys.stderr, flush=True)
+        return 2
+    try:
+        result = asyncio.run(asyncio.wait_for(fly(args, Eyes(seg, det, cfg), cfg, scenario), args.timeout))
+    except MissionFailed as exc:
+        print(f"FAILED: {exc}", file=sys.stderr, flush=True)
+        return 1
+    except TimeoutError:
+        print(
+            f"FAILED: the landing took longer than --timeout {args.timeout:.0f} s",
+            file=sys.stderr,
+            flush=True,
+        )
+        return 1
+    except (ValueError, PerceptionError) as exc:  # e.g. a malformed frame socket address
+        print(f"FAILED: {exc}", file=sys.stderr, flush=True)
+        return 1
+    except KeyboardInterrupt:
+        print("vision_landing: interrupted (Ctrl-C)", file=sys.stderr, flush=True)
+        return 130
+    print("RESULT " + " ".join(f"{k}={v}" for k, v in result.items()), flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
