@@ -40,6 +40,12 @@ Policy = Callable[[np.ndarray], np.ndarray]
 Row = dict[str, Any]
 
 
+def model_env_kwargs(model_path: str | Path) -> dict[str, Any] | None:
+    """The env keyword arguments the policy was trained with (its .json beside the .zip), None: the example's."""
+    meta = Path(str(model_path).removesuffix(".zip") + ".json")
+    return json.loads(meta.read_text()).get("env_kwargs") if meta.is_file() else None
+
+
 def sb3_policy(model_path: str | Path) -> Policy:
     from stable_baselines3 import SAC
 
@@ -63,11 +69,12 @@ def evaluate_gym(
     seed: int,
     scenarios: list[Scenario] | None = None,
     max_episode_s: float | None = None,
+    env_kwargs: dict[str, Any] | None = None,
 ) -> list[Row]:
     """Fly trials 0..n-1 of `seed` with `policy` in the example's env; the trials' score rows. With `scenarios`
     (draw_scenarios(spec, n, seed)) each episode's scenario is checked to be that trial's. max_episode_s: None =
     the spec's timeout_s (as the trials)."""
-    env = example.make_env(spec_path, max_episode_s=max_episode_s)
+    env = example.make_env(spec_path, max_episode_s=max_episode_s, env_kwargs=env_kwargs)
     rows: list[Row] = []
     try:
         for k in range(n):
@@ -138,6 +145,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--spec", default=str(example.SPEC))
     ap.add_argument("--model", type=Path, help="a saved SB3 SAC policy (.zip)")
     ap.add_argument("--pilots", nargs="+", default=["sac", "random", "descend"])
+    ap.add_argument("--name", default="sac", help="the row name of the sac pilot (default %(default)s)")
     ap.add_argument("--n", type=int, default=30)
     ap.add_argument("--seed", type=int, help="scenario seed (default: the spec's)")
     ap.add_argument("--rows", type=Path, help="write/merge every pilot's rows here (JSON)")
@@ -155,7 +163,13 @@ def main(argv: list[str] | None = None) -> int:
         if pilot == "sac":
             if args.model is None:
                 ap.error("--model is needed for the sac pilot")
-            rows["sac"] = evaluate_gym(sb3_policy(args.model), args.spec, args.n, seed, scenarios)
+            kw = model_env_kwargs(args.model)
+            rows[args.name] = evaluate_gym(
+                sb3_policy(args.model), args.spec, args.n, seed, scenarios, env_kwargs=kw
+            )
+            walls[args.name] = round(time.perf_counter() - t0, 1)
+            print(f"{args.name}: {args.n} trials in {walls[args.name]} s", flush=True)
+            continue
         elif pilot == "random":
             rows["random"] = evaluate_gym(random_policy(seed), args.spec, args.n, seed, scenarios)
         else:
