@@ -57,6 +57,21 @@ def sb3_policy(model_path: str | Path) -> Policy:
     return act
 
 
+def land_speed_cap(policy: Policy, below_m: float, max_m_s: float, max_vspeed_m_s: float) -> Policy:
+    """A fixed rule on top of a policy: below `below_m` above ground the commanded descent is at most max_m_s (as PX4's
+    land speed near the ground); the policy still chooses everything else. Scaled observation: altitude = obs[9] x 30 m
+    (train_sb3_landing.STATE_SCALE)."""
+    cap = max_m_s / max_vspeed_m_s
+
+    def act(obs: np.ndarray) -> np.ndarray:
+        a = policy(obs).copy()
+        if float(obs[9]) * float(example.STATE_SCALE[9]) < below_m:
+            a[2] = min(float(a[2]), cap)
+        return a
+
+    return act
+
+
 def random_policy(seed: int) -> Policy:
     rng = np.random.default_rng(seed)
     return lambda obs: rng.uniform(-1.0, 1.0, 4).astype(np.float32)
@@ -146,6 +161,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--model", type=Path, help="a saved SB3 SAC policy (.zip)")
     ap.add_argument("--pilots", nargs="+", default=["sac", "random", "descend"])
     ap.add_argument("--name", default="sac", help="the row name of the sac pilot (default %(default)s)")
+    ap.add_argument("--cap", type=float, nargs=2, metavar=("BELOW_M", "M_S"),
+                    help="sac pilot: cap the commanded descent to M_S below BELOW_M above ground (a fixed rule)")  # fmt: skip
     ap.add_argument("--n", type=int, default=30)
     ap.add_argument("--seed", type=int, help="scenario seed (default: the spec's)")
     ap.add_argument("--rows", type=Path, help="write/merge every pilot's rows here (JSON)")
@@ -164,9 +181,11 @@ def main(argv: list[str] | None = None) -> int:
             if args.model is None:
                 ap.error("--model is needed for the sac pilot")
             kw = model_env_kwargs(args.model)
-            rows[args.name] = evaluate_gym(
-                sb3_policy(args.model), args.spec, args.n, seed, scenarios, env_kwargs=kw
-            )
+            policy = sb3_policy(args.model)
+            if args.cap is not None:
+                vmax = (kw or example.ENV_KWARGS)["max_vspeed_m_s"]
+                policy = land_speed_cap(policy, args.cap[0], args.cap[1], vmax)
+            rows[args.name] = evaluate_gym(policy, args.spec, args.n, seed, scenarios, env_kwargs=kw)
             walls[args.name] = round(time.perf_counter() - t0, 1)
             print(f"{args.name}: {args.n} trials in {walls[args.name]} s", flush=True)
             continue
