@@ -5,10 +5,10 @@
 
 One env step = 1/30 s of 250 Hz physics (attitude action [0, 0, 0, 0]: hover, via Vehicle.step_command) + the footage
 frame for that time + the VAC view (`--image-size`, default 640x480 as bench_core's "full step") + state, reward
-(LandingScorer: risk + people queries) and termination. Footage: the 4K bench clip of bench_core.py (the shared
+(LandingReward: risk + people queries) and termination (the trials' TrialMonitor). Footage: the 4K bench clip of bench_core.py (the shared
 interchange clip upscaled to 3840x2160, 60 frames, 25 fps) as video, or its jpeg tile cache (`--footage tiles`,
 built by bench_tiles.py / `viva-sitl footage ingest --tiles`). Every copy hovers at --z over its own drawn start
-(ScenarioRanges: north/east within +-15 % of the footage, yaw drawn, one footage offset slot), so N copies render N
+(a TrialSpec: north/east within +-15 % of the footage's smaller side, yaw drawn, footage time 0), so N copies render N
 different regions from the shared decode. The reference (`DroneEnv.step`, its own interpreter, same clip, hover at the
 same z, 640x480 view) runs in the same rounds, interleaved. Reported: median env steps/s, median wall and CPU ms per
 env step, ratios (per-env step cost vs a single env; steps/s vs the reference). Load average printed per round: on a
@@ -35,26 +35,31 @@ sys.path.insert(0, str(REPO / "bench"))
 
 import bench_core as core  # noqa: E402
 
-from viva_sitl.gym import LandingEnv, ScenarioRanges, SharedFootageVectorEnv  # noqa: E402
+from viva_sitl.evaluation.spec import footage_box  # noqa: E402
+from viva_sitl.gym import LandingEnv, SharedFootageVectorEnv, TrialSpec  # noqa: E402
 
 
 def loadavg() -> str:
     return " ".join(f"{v:.2f}" for v in os.getloadavg())
 
 
-def env_kwargs(args: argparse.Namespace) -> dict[str, Any]:
+def env_kwargs(args: argparse.Namespace, footage: str) -> dict[str, Any]:
     w, h = (int(v) for v in args.image_size.lower().split("x"))
+    g = footage_box(footage).geometry
+    half = 0.15 * min(g.ground_width_m, g.ground_height_m)
     return {
         "image_size": (w, h),
         "observation": "image+state",
         "max_episode_s": 1e6,
-        "scenario": ScenarioRanges(alt_m=(args.z, args.z), xy_frac=0.3, offset_slots=1),
+        "spec": TrialSpec(
+            altitude_m=(args.z, args.z), north_m=(-half, half), east_m=(-half, half), margin_m=0.0
+        ),
     }
 
 
 def time_single(footage: str, args: argparse.Namespace) -> tuple[float, float]:
     """(wall ms, CPU ms) per env step of one LandingEnv."""
-    env = LandingEnv(footage, **env_kwargs(args))
+    env = LandingEnv(footage, **env_kwargs(args, footage))
     env.reset(seed=0)
     a = np.zeros(4, np.float32)
     c0, t0 = time.process_time(), time.perf_counter()
@@ -67,7 +72,7 @@ def time_single(footage: str, args: argparse.Namespace) -> tuple[float, float]:
 
 def time_vector(footage: str, n: int, args: argparse.Namespace) -> tuple[float, float]:
     """(wall ms, CPU ms) per env step (one vector step = n env steps)."""
-    venv = SharedFootageVectorEnv(n, footage=footage, **env_kwargs(args))
+    venv = SharedFootageVectorEnv(n, footage=footage, **env_kwargs(args, footage))
     venv.reset(seed=0)
     a = np.zeros((n, 4), np.float32)
     c0, t0 = time.process_time(), time.perf_counter()

@@ -1,10 +1,12 @@
 """The Gymnasium landing environments (viva_sitl.gym): API conformance, determinism, action semantics, bad input,
-scoring, rendering. Flown over the synthetic field (always available) through the real Vehicle loop."""
+the trials' scenarios and scores, rendering. Flown over the synthetic field (always available) through the real
+Vehicle loop."""
 
 from __future__ import annotations
 
 import math
 import warnings
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -16,15 +18,22 @@ gym = pytest.importorskip("gymnasium")
 from gymnasium.utils.env_checker import check_env  # noqa: E402
 
 import viva_sitl.gym  # noqa: E402,F401  (registers the ids)
+from viva_sitl.autopilot import FlightMode, PositionTarget  # noqa: E402
 from viva_sitl.config import SimConfig  # noqa: E402
 from viva_sitl.dynamics import EavParams  # noqa: E402
+from viva_sitl.evaluation import pilots as pilots_mod  # noqa: E402
+from viva_sitl.evaluation.runner import run_inprocess_trial  # noqa: E402
+from viva_sitl.evaluation.spec import draw_scenarios, load_spec  # noqa: E402
 from viva_sitl.gym import (  # noqa: E402
     LandingEnv,
-    LandingScoreConfig,
+    RewardConfig,
     Scenario,
-    ScenarioRanges,
     StepScore,
+    TrialSpec,
 )
+
+REPO = Path(__file__).resolve().parents[1]
+SYNTH_SPEC = REPO / "configs" / "trials" / "synthetic_emergency.toml"
 
 IDS = [
     "viva_sitl/Landing-v0",
@@ -36,7 +45,7 @@ SMALL = {"image_size": (64, 48)}
 
 
 def level_start(alt_m: float = 20.0, yaw_rad: float = 0.0) -> dict[str, Any]:
-    return {"scenario": Scenario(pos_ned_m=(0.0, 0.0, -alt_m), yaw_rad=yaw_rad, footage_offset_s=0.0)}
+    return {"scenario": Scenario.air(0.0, 0.0, alt_m, yaw_deg=math.degrees(yaw_rad))}
 
 
 @pytest.mark.parametrize("env_id", IDS)
@@ -76,9 +85,9 @@ def same(a: Any, b: Any) -> bool:
 
 
 def test_seeded_rollouts_are_bit_identical() -> None:
-    ranges = ScenarioRanges(alt_m=(3.0, 6.0), wind_speed_m_s=(0.0, 3.0), gust_std_m_s=(0.0, 0.5))
-    a = LandingEnv("synthetic", scenario=ranges, **SMALL)
-    b = LandingEnv("synthetic", scenario=ranges, **SMALL)
+    spec = TrialSpec(altitude_m=(3.0, 6.0), wind_speed_m_s=(0.0, 3.0), gust_std_m_s=(0.0, 0.5))
+    a = LandingEnv("synthetic", spec=spec, **SMALL)
+    b = LandingEnv("synthetic", spec=spec, **SMALL)
     b.reset(seed=99)  # b has flown elsewhere first: must not matter
     for _ in range(20):
         b.step(np.array([0.5, -0.5, 1.0, 0.2], np.float32))
@@ -168,19 +177,32 @@ def fly_down(env: LandingEnv, thrust: float, options: dict[str, Any]) -> tuple[f
     raise AssertionError("never ended")
 
 
-def test_touchdown_scores_safe_and_unsafe_landings() -> None:
-    env = LandingEnv("synthetic", observation="state", score=LandingScoreConfig(max_risk_level=5))
-    # a gentle touchdown (sink rate limited by a thrust just under hover)
+def test_touchdown_ends_as_a_trial_and_scores_it() -> None:
+    env = LandingEnv("synthetic", observation="state")
+    # a gentle touchdown (sink rate limited by a thrust just under hover): the env disarms, the trial is "landed"
     slow_total, slow, _ = fly_down(env, -0.02, level_start(alt_m=2.0))
-    assert slow["score"]["outcome"] == "safe_landing" and slow["score"]["touchdown_speed_m_s"] < 1.0
-    fast_total, fast, _ = fly_down(env, -1.0, level_start(alt_m=15.0))  # motors off from 15 m
-    assert fast["score"]["outcome"] == "unsafe_landing" and fast["score"]["touchdown_speed_m_s"] > 10.0
-    assert slow_total > fast_total + 100.0
-    # risk: a limit of 0 people-distance and level 1 turns the same gentle landing unsafe unless the ground is level 1
-    strict = LandingEnv("synthetic", observation="state", score=LandingScoreConfig(max_risk_level=1))
-    _, info, _ = fly_down(strict, -0.02, level_start(alt_m=2.0))
-    expect = "safe_landing" if info["score"]["risk_level"] <= 1 else "unsafe_landing"
-    assert info["score"]["outcome"] == expect
+    row = slow["trial"]
+    assert row["end"] == "landed" and row["landed"] and row["touchdown_speed_m_s"] < 1.0
+    assert not env.vehicle.autopilot.armed
+    # the terminal reward is the row's outcome (RewardConfig defaults), hand-computed from the row
+    c = RewardConfig()
+    d = row["min_dist_person_m"] if row["min_dist_person_m"] is not None else row["dist_person_m"]
+    expect = (c.landed_bonus + (c.success_bonus if row["success"] else 0.0)
+              - c.touchdown_weight * row["touchdown_speed_m_s"] - c.touchdown_risk_weight * (row["risk_level"] - 1)
+              - c.touchdown_people_weight * max(0.0, 5.0 - d))  # fmt: skip
+    assert env.scorer.final(row) == pytest.approx(expect)
+    # motors off from 15 m: a crash (touchdown > the spec's crash_speed_m_s), ends on that physics step
+    fast_total, fast, _ = fly_down(env, -1.0, level_start(alt_m=15.0))
+    assert fast["trial"]["end"] == "crash" and fast["trial"]["touchdown_speed_m_s"] > 10.0
+    assert not fast["trial"]["success"]
+    assert slow_total > fast_total + 50.0
+    # the criterion is the spec's: allowing any risk level and no people distance can only turn failures into
+    # successes, never the reverse
+    lax = TrialSpec(criterion=replace(TrialSpec().criterion, max_risk_level=None, min_dist_person_m=None))
+    _, info, _ = fly_down(
+        LandingEnv("synthetic", observation="state", spec=lax), -0.02, level_start(alt_m=2.0)
+    )
+    assert info["trial"]["success"] is True and info["trial"]["risk_level"] == row["risk_level"]
 
 
 def test_truncates_on_time_limit() -> None:
@@ -208,26 +230,140 @@ def test_images_grayscale_stack_and_overview() -> None:
 
 
 def test_seams_take_a_custom_scorer_and_scenario_drawer() -> None:
-    drawn: list[int] = []
+    drawn: list[tuple[int, int]] = []
 
-    def drawer(rng: np.random.Generator, geometry: Any, duration_s: float) -> Scenario:
-        drawn.append(int(rng.integers(1000)))
-        return Scenario(pos_ned_m=(1.0, 2.0, -7.0), yaw_rad=0.5, footage_offset_s=0.25)
+    def drawer(seed: int, index: int) -> Scenario:
+        drawn.append((seed, index))
+        return Scenario.air(1.0, 2.0, 7.0, yaw_deg=30.0, footage_time_s=0.25)
 
     class Constant:
-        def reset(self, state: Any, footage_time_s: float) -> None:
+        def reset(self, scenario: Scenario, state: Any, footage_time_s: float) -> None:
             self.t0 = footage_time_s
 
-        def score(self, state: Any, footage_time_s: float, inside: bool) -> StepScore:
+        def step(self, state: Any, footage_time_s: float) -> StepScore:
             return StepScore(42.0, footage_time_s - self.t0 > 0.2, {"outcome": "custom"})
+
+        def final(self, row: dict[str, Any]) -> float:
+            return 1.0 if row["end"] == "scorer" else -1.0
 
     env = LandingEnv("synthetic", observation="state", scenario_drawer=drawer, scorer=Constant())
     obs, info = env.reset(seed=5)
-    assert drawn and obs[:3].tolist() == [1.0, 2.0, -7.0] and info["footage_time_s"] == 0.25
+    env.reset()
+    assert (
+        drawn == [(5, 0), (5, 1)] and obs[:3].tolist() == [1.0, 2.0, -7.0] and info["footage_time_s"] == 0.25
+    )
     r, term = 0.0, False
     while not term:
         _, r, term, _, info = env.step(np.zeros(4, np.float32))
-    assert r == 42.0 and info["score"] == {"outcome": "custom"}
+    assert r == 43.0 and info["score"] == {"outcome": "custom"} and info["trial"]["end"] == "scorer"
+
+
+def test_reset_seed_draws_the_trials_scenarios() -> None:
+    """gymnasium.make(id, spec=TOML): reset(seed=s) flies trial 0 of `trials run --seed s`, reset() the next ones, with
+    the scenario's start pose, footage time, wind, PX4 parameters and failures."""
+    env = gym.make("viva_sitl/LandingStateVelocity-v0", spec=str(SYNTH_SPEC))
+    spec = load_spec(SYNTH_SPEC)
+    want = draw_scenarios(spec, n=4, seed=7)
+    got = []
+    for k in range(3):
+        obs, info = env.reset(seed=7) if k == 0 else env.reset()
+        sc = env.unwrapped.scenario
+        got.append(sc)
+        w = want[k]
+        assert sc == w and info["trial_index"] == k and info["trial_seed"] == 7
+        assert obs[:3].tolist() == pytest.approx([w.north_m, w.east_m, -w.altitude_m], abs=1e-5)
+        assert obs[8] == pytest.approx(math.radians(w.yaw_deg), abs=1e-5)
+        assert info["footage_time_s"] == w.footage_time_s
+        veh = env.unwrapped.vehicle
+        for name, value in w.all_params():
+            assert veh.params.get(name) == pytest.approx(value, abs=1e-6), name
+    assert (
+        env.reset(seed=7, options={"trial": 3})[1]["trial_index"] == 3 and env.unwrapped.scenario == want[3]
+    )
+    assert len({(g.north_m, g.footage_time_s) for g in got}) == 3
+    # failure injection and "land now" follow the trial's schedule (the trials' monitor): find a scenario with one
+    k = next(i for i, sc in enumerate(draw_scenarios(spec, n=40, seed=7)) if sc.failures)
+    env.reset(seed=7, options={"trial": k})
+    sc = env.unwrapped.scenario
+    assert sc.failures
+    while env.unwrapped.vehicle.time_s < max(sc.land_at_s, sc.failures[0].at_s) + 0.5:
+        env.step(np.zeros(4, np.float32))
+    kinds = [e["kind"] for e in env.unwrapped.monitor.log.events]
+    assert "land_now" in kinds and "failure" in kinds
+    env.close()
+
+
+class ReplayPilot:
+    """An in-process trials pilot flying the same velocity setpoints as the gym test below, at the gym's control
+    rate, and disarming at the first control step on the ground as the env does."""
+
+    name = "replay"
+    control_hz = 25.0
+    frame_hz = 0.0
+    uses_ground_truth = False
+
+    def reset(self, scenario: Any, truth: Any) -> None:
+        self.k = 0
+
+    def act(self, obs: Any, ctl: Any) -> None:
+        ap, t = ctl.autopilot, obs.state.time_s
+        if obs.state.landed and obs.armed and self.k > 0:
+            ap.disarm(t, force=True)
+            return None
+        a = replay_action(self.k)
+        ap.set_position_target(t, PositionTarget(vel_ned_m_s=(a[0] * 5.0, a[1] * 5.0, a[2] * 3.0),
+                                                 yaw_rate_rad_s=a[3] * math.radians(30.0)))  # fmt: skip
+        if ap.mode != FlightMode.OFFBOARD:
+            ap.set_mode(t, FlightMode.OFFBOARD)
+        self.k += 1
+        return None
+
+
+def replay_action(k: int) -> np.ndarray:
+    return np.array([0.3 * math.sin(k / 15.0), 0.15, 0.3, 0.2 * math.cos(k / 20.0)], np.float32)
+
+
+def test_same_trajectory_gets_the_trials_score_row(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
+    """The gym env and the trials runner fly the same scenario with the same setpoints: the same trajectory, and the
+    env's last info["trial"] is the row `trials run` computes (every column but pilot and wall time)."""
+    spec = load_spec(SYNTH_SPEC)
+    monkeypatch.setitem(pilots_mod.BUILTIN_PILOTS, "replay", ReplayPilot)
+    env = LandingEnv(spec=SYNTH_SPEC, observation="state", action_mode="velocity", control_hz=25.0)
+    for k in (0, 1):
+        sc = draw_scenarios(spec, n=2, seed=3)[k]
+        env.reset(seed=3, options={"trial": k})
+        assert env.scenario == sc
+        n, info, total = 0, {}, 0.0
+        while True:
+            _, r, term, trunc, info = env.step(replay_action(n))
+            n, total = n + 1, total + r
+            if term or trunc:
+                break
+        gym_row = info["trial"]
+        ref = run_inprocess_trial(spec, sc, "replay", tmp_path / f"t{k}")
+        assert gym_row["end"] == "landed" and gym_row["touchdown_speed_m_s"] is not None
+        diff = {c: (gym_row[c], ref[c]) for c in ref if c not in ("pilot", "wall_s") and gym_row[c] != ref[c]}
+        assert not diff
+        assert math.isfinite(total)
+
+
+def test_state_only_observation_never_renders(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The state-only variants never draw the VAC (the speed RL training needs); the image ones do."""
+    calls: list[int] = []
+    env = gym.make("viva_sitl/LandingStateVelocity-v0", spec=str(SYNTH_SPEC)).unwrapped
+    original = env.vehicle.sim.render
+    monkeypatch.setattr(env.vehicle.sim, "render", lambda *a, **k: calls.append(1) or original(*a, **k))
+    env.reset(seed=0)
+    for _ in range(20):
+        env.step(env.action_space.sample())
+    env.reset()
+    assert calls == []
+    img = gym.make("viva_sitl/LandingVelocity-v0", spec=str(SYNTH_SPEC), **SMALL).unwrapped
+    original_img = img.vehicle.sim.render
+    monkeypatch.setattr(img.vehicle.sim, "render", lambda *a, **k: calls.append(1) or original_img(*a, **k))
+    img.reset(seed=0)
+    img.step(img.action_space.sample())
+    assert len(calls) == 2
 
 
 def test_leaving_the_footage_ends_the_episode(shared_dir: Path) -> None:
@@ -235,7 +371,7 @@ def test_leaving_the_footage_ends_the_episode(shared_dir: Path) -> None:
     env = LandingEnv(footage, image_size=(64, 48), render_mode="rgb_array")
     g = env.footage.geometry
     edge_east_m = 0.5 * g.ground_width_m - 3.0
-    start = Scenario(pos_ned_m=(0.0, edge_east_m, -30.0), yaw_rad=0.0, footage_offset_s=0.0)
+    start = Scenario.air(0.0, edge_east_m, 30.0)
     env.reset(seed=0, options={"scenario": start})
     over = env.render()
     assert over is not None and over.shape[1] <= 800 and over.shape[2] == 3
@@ -243,6 +379,6 @@ def test_leaving_the_footage_ends_the_episode(shared_dir: Path) -> None:
         obs, r, term, trunc, info = env.step(np.array([1.0, 0.0, 0.0, 0.05], np.float32))  # roll right: east
         if term:
             break
-    assert term and info["score"]["outcome"] == "left_footage" and r < -50.0
+    assert term and info["trial"]["end"] == "left_footage" and r < -50.0
     assert not g.contains_ned(float(obs["state"][0]), float(obs["state"][1]))
     env.close()

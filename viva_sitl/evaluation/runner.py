@@ -69,6 +69,18 @@ def make_vehicle(scenario: Scenario, src: FootageSource) -> Vehicle:
     return v
 
 
+def monitored_step(vehicle: Vehicle, monitor: TrialMonitor, cmd: EavCommand | None) -> None:
+    """One physics step of a trial (the autopilot's, or `cmd` with the autopilot bypassed), its autopilot events
+    into the trial's events, then the monitor's judgement. The trials runner and the gym environments step this."""
+    if cmd is None:
+        vehicle.step()
+    else:
+        vehicle.step_command(cmd)
+    for e in vehicle.autopilot.pop_events():
+        monitor.record_autopilot_event(vehicle.time_s, int(e.severity), e.text)
+    monitor.after_step(vehicle)
+
+
 def run_inprocess_trial(
     spec: TrialSpec,
     scenario: Scenario,
@@ -138,14 +150,8 @@ def run_inprocess_trial(
                         vehicle, "wall_timeout", f"trial took more than {wall_limit_s:g} s of wall time"
                     )
                     break
-            if cmd is None:
-                vehicle.step()
-            else:
-                vehicle.step_command(cmd)
+            monitored_step(vehicle, monitor, cmd)
             step += 1
-            for e in ap.pop_events():
-                monitor.record_autopilot_event(vehicle.time_s, int(e.severity), e.text)
-            monitor.after_step(vehicle)
     finally:
         if writer is not None:
             writer.release()

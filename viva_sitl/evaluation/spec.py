@@ -12,8 +12,10 @@ choice):
                end_outside_s (a trial ends after this long with the ground point outside the footage),
                crash_speed_m_s (a touchdown faster than this is a crash), log_hz
     [scenario] footage (list), start ("air" | "ground" | both), north_m, east_m (ranges; default: the footage
-               minus margin_m), margin_m, altitude_m, yaw_deg, footage_time_s, land_at_s (the "land now" trigger,
-               s after the start), wind_speed_m_s, wind_dir_deg (where the wind blows *from*), gust_std_m_s
+               minus margin_m), margin_m, altitude_m, yaw_deg, footage_time_s, footage_time_slots (0: footage_time_s
+               uniform; K >= 1: one of K evenly spaced times lo + (hi - lo) i / K, so that the copies of a vector
+               gym env share footage decodes), land_at_s (the "land now" trigger, s after the start),
+               wind_speed_m_s, wind_dir_deg (where the wind blows *from*), gust_std_m_s
     [scenario.params]      PX4 parameter = number or [lo, hi] (e.g. MPC_LAND_SPEED, SIM_MASS)
     [[scenario.failures]]  kind = "gcs_link_lost" | "battery_critical", at_s = [lo, hi], probability = 0..1
     [scoring]  final_descent_below_m, and criterion = {name, landed, max_touchdown_speed_m_s,
@@ -33,13 +35,16 @@ import math
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from viva_sitl.autopilot.params import ParamStore
 from viva_sitl.config import ConfigError
 from viva_sitl.footage.geometry import FootageGeometry
+
+if TYPE_CHECKING:
+    from viva_sitl.footage import FootageSource
 
 SCENARIO_SCHEMA = "vivasitl.scenario.v1"
 FAILURE_KINDS = ("gcs_link_lost", "battery_critical")
@@ -104,6 +109,7 @@ class TrialSpec:
     altitude_m: Range = (20.0, 40.0)
     yaw_deg: Range = (0.0, 360.0)
     footage_time_s: Range = (0.0, 0.0)
+    footage_time_slots: int = 0
     land_at_s: Range = (1.0, 1.0)
     wind_speed_m_s: Range = (0.0, 0.0)
     wind_dir_deg: Range = (0.0, 360.0)
@@ -143,6 +149,19 @@ class Scenario:
     params: tuple[tuple[str, float], ...]
     failures: tuple[Failure, ...]
     timeout_s: float
+
+    @classmethod
+    def air(
+        cls, north_m: float, east_m: float, altitude_m: float, *, yaw_deg: float = 0.0,
+        footage_time_s: float = 0.0, footage: str = "synthetic", seed: int = 0, land_at_s: float = 0.0,
+        timeout_s: float = 60.0,
+    ) -> Scenario:  # fmt: skip
+        """A hand-made air start (calm, no failures): e.g. a gym env's reset(options={"scenario": ...})."""
+        return cls(
+            index=0, seed=seed, footage=footage, start="air", north_m=north_m, east_m=east_m,
+            altitude_m=altitude_m, yaw_deg=yaw_deg, footage_time_s=footage_time_s, land_at_s=land_at_s,
+            wind_ned_m_s=(0.0, 0.0, 0.0), gust_std_m_s=0.0, params=(), failures=(), timeout_s=timeout_s,
+        )  # fmt: skip
 
     @property
     def start_pos_ned_m(self) -> tuple[float, float, float]:
@@ -206,7 +225,7 @@ _TABLES = {
     "trials": ("name", "n", "seed", "timeout_s", "pilot", "speed", "end_outside_s", "crash_speed_m_s", "log_hz",
                "frames"),
     "scenario": ("footage", "start", "north_m", "east_m", "margin_m", "altitude_m", "yaw_deg", "footage_time_s",
-                 "land_at_s", "wind_speed_m_s", "wind_dir_deg", "gust_std_m_s", "params", "failures"),
+                 "footage_time_slots", "land_at_s", "wind_speed_m_s", "wind_dir_deg", "gust_std_m_s", "params", "failures"),
     "scoring": ("final_descent_below_m", "criterion"),
 }  # fmt: skip
 
@@ -302,6 +321,11 @@ def spec_from_dict(data: dict[str, Any], where: str = "spec") -> TrialSpec:
     for key in ("north_m", "east_m"):
         if key in s:
             kw[key] = _range(s[key], f"{w}.{key}")
+    if "footage_time_slots" in s:
+        v = s["footage_time_slots"]
+        if isinstance(v, bool) or not isinstance(v, int) or v < 0:
+            raise ConfigError(f"{w}.footage_time_slots: expected an integer >= 0, got {v!r}")
+        kw["footage_time_slots"] = v
     if "margin_m" in s:
         kw["margin_m"] = _positive(s["margin_m"], f"{w}.margin_m", allow_zero=True)
     limits = {
@@ -435,10 +459,15 @@ def footage_box(name: str) -> FootageBox:
     from viva_sitl.footage import open_footage
 
     with open_footage(name) as src:
-        g = src.geometry
-        corners = [g.px_to_ned(u, v) for u, v in ((0, 0), (g.width_px - 1, 0), (0, g.height_px - 1),
-                                                    (g.width_px - 1, g.height_px - 1))]  # fmt: skip
-        dur = src.frame_count / src.fps if src.frame_count > 1 else math.inf
+        return footage_box_of(src)
+
+
+def footage_box_of(src: FootageSource) -> FootageBox:
+    """The FootageBox of an open source."""
+    g = src.geometry
+    corners = [g.px_to_ned(u, v) for u, v in ((0, 0), (g.width_px - 1, 0), (0, g.height_px - 1),
+                                                (g.width_px - 1, g.height_px - 1))]  # fmt: skip
+    dur = src.frame_count / src.fps if src.frame_count > 1 else math.inf
     ns, es = [c[0] for c in corners], [c[1] for c in corners]
     return FootageBox(g, (min(ns), max(ns)), (min(es), max(es)), dur)
 
@@ -456,22 +485,25 @@ def draw_scenarios(spec: TrialSpec, n: int | None = None, seed: int | None = Non
             bounds[name] = footage_box(name)
         except FootageError as exc:
             raise ConfigError(f"{spec.source}.scenario.footage: {exc}") from None
-        (n0, n1), (e0, e1) = bounds[name].north_m, bounds[name].east_m
-        for key, rng_ in (("north_m", spec.north_m), ("east_m", spec.east_m)):
-            if rng_ is None:
-                continue
-            lim = (n0, n1) if key == "north_m" else (e0, e1)
-            if rng_[0] < lim[0] + spec.margin_m or rng_[1] > lim[1] - spec.margin_m:
-                raise ConfigError(
-                    f"{spec.source}.scenario.{key}: [{rng_[0]:g}, {rng_[1]:g}] leaves footage {name!r} "
-                    f"(inside: [{lim[0] + spec.margin_m:.1f}, {lim[1] - spec.margin_m:.1f}] with margin_m "
-                    f"{spec.margin_m:g})"
-                )
-        if spec.north_m is None and n1 - n0 <= 2 * spec.margin_m:
-            raise ConfigError(
-                f"{spec.source}.scenario.margin_m: {spec.margin_m:g} m leaves no room in {name!r}"
-            )
+        check_bounds(spec, name, bounds[name])
     return [draw_scenario(spec, k, seed, bounds) for k in range(n)]
+
+
+def check_bounds(spec: TrialSpec, name: str, box: FootageBox) -> None:
+    """ConfigError when the spec's start ranges cannot be drawn inside footage `name` (its box)."""
+    (n0, n1), (e0, e1) = box.north_m, box.east_m
+    for key, rng_ in (("north_m", spec.north_m), ("east_m", spec.east_m)):
+        if rng_ is None:
+            continue
+        lim = (n0, n1) if key == "north_m" else (e0, e1)
+        if rng_[0] < lim[0] + spec.margin_m or rng_[1] > lim[1] - spec.margin_m:
+            raise ConfigError(
+                f"{spec.source}.scenario.{key}: [{rng_[0]:g}, {rng_[1]:g}] leaves footage {name!r} "
+                f"(inside: [{lim[0] + spec.margin_m:.1f}, {lim[1] - spec.margin_m:.1f}] with margin_m "
+                f"{spec.margin_m:g})"
+            )
+    if spec.north_m is None and n1 - n0 <= 2 * spec.margin_m:
+        raise ConfigError(f"{spec.source}.scenario.margin_m: {spec.margin_m:g} m leaves no room in {name!r}")
 
 
 def draw_scenario(spec: TrialSpec, index: int, seed: int, bounds: dict[str, FootageBox]) -> Scenario:
@@ -494,6 +526,14 @@ def draw_scenario(spec: TrialSpec, index: int, seed: int, bounds: dict[str, Foot
             break
     alt, yaw = u(spec.altitude_m), u(spec.yaw_deg) % 360.0
     ft = u(spec.footage_time_s)
+    k = spec.footage_time_slots
+    if k > 0:  # the same draw, snapped down to one of k slots: the other draws do not move
+        lo, hi = spec.footage_time_s
+        ft = (
+            round(lo + (hi - lo) * min(k - 1, math.floor((ft - lo) / (hi - lo) * k)) / k, 6)
+            if hi > lo
+            else lo
+        )
     if math.isfinite(dur) and dur > 0:
         ft = round(ft % dur, 6)
     land_at = u(spec.land_at_s)

@@ -9,8 +9,10 @@
 - viva_sitl/LandingState-v0: state vector only (nothing rendered), attitude actions.
 - viva_sitl/LandingStateVelocity-v0: state vector only, velocity setpoints.
 Vectorized over one shared footage decode: `SharedFootageVectorEnv` (or gymnasium.make_vec(id, num_envs,
-vectorization_mode="vector_entry_point")). Seams for the trials runner: `Scorer` (scoring.py) and
-`ScenarioDrawer` (scenario.py).
+vectorization_mode="vector_entry_point")).
+Scenarios, termination and scores are the landing trials' (viva_sitl.evaluation): `spec=` a trials TOML or
+TrialSpec, reset(seed=s) flies what `viva-sitl trials run SPEC --seed s` flies, info["trial"] at the end is its score
+row. Seams: `Scorer` (scoring.py: reward) and `ScenarioDrawer` (scenario.py).
 """
 
 from __future__ import annotations
@@ -21,8 +23,8 @@ except ImportError as exc:  # pragma: no cover - depends on the install
     raise ImportError("viva_sitl.gym needs gymnasium: pip install 'viva-sitl[gym]'") from exc
 
 from viva_sitl.gym.env import STATE_FIELDS, LandingEnv, overview_rgb
-from viva_sitl.gym.scenario import RangeScenarioDrawer, Scenario, ScenarioDrawer, ScenarioRanges
-from viva_sitl.gym.scoring import LandingScoreConfig, LandingScorer, Scorer, StepScore
+from viva_sitl.gym.scenario import Scenario, ScenarioDrawer, SpecScenarioDrawer, TrialSpec, default_spec
+from viva_sitl.gym.scoring import LandingReward, RewardConfig, Scorer, StepScore
 from viva_sitl.gym.vector import SharedFootageVectorEnv
 
 _VARIANTS = {
@@ -44,14 +46,15 @@ for _id, _kwargs in _VARIANTS.items():
 __all__ = [
     "STATE_FIELDS",
     "LandingEnv",
-    "LandingScoreConfig",
-    "LandingScorer",
-    "RangeScenarioDrawer",
+    "LandingReward",
+    "RewardConfig",
     "Scenario",
     "ScenarioDrawer",
-    "ScenarioRanges",
     "Scorer",
     "SharedFootageVectorEnv",
+    "SpecScenarioDrawer",
     "StepScore",
+    "TrialSpec",
+    "default_spec",
     "overview_rgb",
 ]

@@ -27,8 +27,17 @@ image: the VAC view, `image_size` (w, h), RGB (or grayscale HxWx1), `frame_stack
 views along the channel axis (oldest first). state (float32): north, east, down (m), v_north, v_east, v_down (m/s),
 roll, pitch, yaw (rad), altitude above ground (m).
 
-Reward/termination: the Scorer seam (viva_sitl.gym.scoring); start: the ScenarioDrawer seam
-(viva_sitl.gym.scenario), drawn from reset's seed. Truncation: episode sim time >= max_episode_s.
+Scenarios (viva_sitl.gym.scenario): the landing trials' (`spec=` a trials TOML or TrialSpec): reset(seed=s) flies
+the scenario `viva-sitl trials run SPEC --seed s` flies as trial 0, each reset() without a seed the next trial
+(options={"trial": k}: trial k; options={"scenario": Scenario}: that one). The scenario's start pose, footage time,
+wind, PX4 parameters, physics seed and failures (failure injection, "land now" event: the trials' TrialMonitor
+applies them) are flown as in the trials; the policy is in control from the start (air start; OFFBOARD in velocity
+mode).
+Termination and scores: the trials' (viva_sitl.gym.scoring): the episode ends when the trial would (landed =
+touchdown + disarm: the env disarms at the first control step on the ground; crash; left_footage; timeout ->
+truncated; max_episode_s overrides the spec's timeout_s), and the last step's info["trial"] is the trial's score
+row (viva_sitl.evaluation.scoring, the row `trials run` writes). Reward: the Scorer seam (default LandingReward:
+shaping + the row's outcome, RewardConfig).
 `render()` (render_mode="rgb_array"): the overview, the footage frame at the current footage time with the risk map,
 the objects, the vehicle and its camera footprint (RGB).
 """
@@ -51,10 +60,20 @@ from numpy.typing import NDArray
 from viva_sitl.autopilot.types import FlightMode, PositionTarget
 from viva_sitl.config import SimConfig
 from viva_sitl.dynamics import EavCommand, EavState
+from viva_sitl.evaluation.monitor import Limits, TrialMonitor
+from viva_sitl.evaluation.runner import limits_of, monitored_step
+from viva_sitl.evaluation.scoring import score_trial
+from viva_sitl.evaluation.spec import Scenario, TrialSpec, footage_box_of
 from viva_sitl.footage import FootageSource, open_footage
 from viva_sitl.footage.synthetic import SyntheticField
-from viva_sitl.gym.scenario import RangeScenarioDrawer, Scenario, ScenarioDrawer, ScenarioRanges
-from viva_sitl.gym.scoring import LandingScoreConfig, LandingScorer, Scorer
+from viva_sitl.gym.scenario import (
+    ScenarioDrawer,
+    SpecScenarioDrawer,
+    default_spec,
+    resolve_spec,
+    with_footage,
+)
+from viva_sitl.gym.scoring import LandingReward, RewardConfig, Scorer
 from viva_sitl.vehicle import Vehicle
 from viva_sitl.world import WorldModel, world_from_source
 
@@ -71,19 +90,19 @@ class LandingEnv(gym.Env[Any, NDArray[np.float32]]):
 
     def __init__(
         self,
-        footage: str | Path | FootageSource = "synthetic",
+        footage: str | Path | FootageSource | None = None,
         *,
+        spec: str | Path | TrialSpec | None = None,
         action_mode: str = "attitude",
         observation: str = "image+state",
         image_size: tuple[int, int] = (160, 120),
         grayscale: bool = False,
         frame_stack: int = 1,
         control_hz: float = 30.0,
-        max_episode_s: float = 60.0,
+        max_episode_s: float | None = None,
         config: SimConfig | None = None,
-        scenario: ScenarioRanges | None = None,
         scenario_drawer: ScenarioDrawer | None = None,
-        score: LandingScoreConfig | None = None,
+        reward: RewardConfig | None = None,
         scorer: Scorer | None = None,
         world: WorldModel | None = None,
         max_tilt_deg: float = 15.0,
@@ -107,15 +126,25 @@ class LandingEnv(gym.Env[Any, NDArray[np.float32]]):
             raise ValueError(
                 f"image_size must be at least 8x8 and frame_stack >= 1, got {image_size}, {frame_stack}"
             )
-        if not (control_hz > 0.0 and math.isfinite(control_hz)) or not (max_episode_s > 0.0):
+        if not (control_hz > 0.0 and math.isfinite(control_hz)) or not (
+            max_episode_s is None or max_episode_s > 0.0
+        ):
             raise ValueError("control_hz and max_episode_s must be positive")
+        trial_spec = resolve_spec(spec) if spec is not None else None
+        if footage is None:
+            footage = trial_spec.footage[0] if trial_spec is not None else "synthetic"
+        if trial_spec is None:
+            trial_spec = default_spec(
+                footage.metadata.name if isinstance(footage, FootageSource) else str(footage)
+            )
+        elif not isinstance(footage, FootageSource):
+            trial_spec = with_footage(trial_spec, str(footage))
         self.action_mode, self.observation, self.render_mode = action_mode, observation, render_mode
         self.grayscale, self.frame_stack, self.control_hz = grayscale, int(frame_stack), float(control_hz)
-        self.max_episode_s, self.out_of_range, self.overview_px = (
-            float(max_episode_s),
-            out_of_range,
-            overview_px,
-        )
+        self.trial_spec = trial_spec
+        self.max_episode_s = float(trial_spec.timeout_s if max_episode_s is None else max_episode_s)
+        self.limits: Limits = replace(limits_of(trial_spec), timeout_s=self.max_episode_s)
+        self.out_of_range, self.overview_px = out_of_range, overview_px
         self.max_tilt_rad = math.radians(max_tilt_deg)
         self.max_yaw_rate_rad_s = math.radians(max_yaw_rate_deg_s)
         self.max_speed_m_s, self.max_vspeed_m_s = float(max_speed_m_s), float(max_vspeed_m_s)
@@ -134,10 +163,17 @@ class LandingEnv(gym.Env[Any, NDArray[np.float32]]):
             source.params = replace(source.params, draw_ahead=False)
         self.footage = source
         self.vehicle = Vehicle(cfg, footage=source, geofence=True)
+        self._params0 = {n: self.vehicle.params.stored(n) for n in self.vehicle.params.names()}
         self.world = world if world is not None else world_from_source(source)
-        self.scorer: Scorer = scorer if scorer is not None else LandingScorer(self.world, score)
-        self.scenario_drawer: ScenarioDrawer = scenario_drawer or RangeScenarioDrawer(scenario)
+        self.scorer: Scorer = scorer if scorer is not None else LandingReward(self.world, trial_spec, reward)
+        self.scenario_drawer: ScenarioDrawer = scenario_drawer or SpecScenarioDrawer(
+            trial_spec, footage_box_of(source)
+        )
+        # the scenario flown (footage_time_s: the footage clock at the start)
         self.scenario: Scenario | None = None
+        self.monitor: TrialMonitor | None = None
+        self.trial_seed: int | None = None
+        self.trial_index = 0
         self.rate_hz = 1.0 / self.vehicle.dt_s
 
         self.action_space = spaces.Box(-1.0, 1.0, shape=(4,), dtype=np.float32)
@@ -213,32 +249,57 @@ class LandingEnv(gym.Env[Any, NDArray[np.float32]]):
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
     ) -> tuple[Any, dict[str, Any]]:
-        """A new episode. `seed` draws the scenario (ScenarioDrawer) and seeds the simulator's disturbances and
-        sensor noise; options: {"scenario": Scenario} flies that scenario instead of drawing one."""
+        """A new episode: trial 0 of `seed` (the trials' drawing), or the next trial without a seed. options:
+        {"trial": k} flies trial k of the current seed; {"scenario": Scenario} flies that scenario."""
         super().reset(seed=seed)
         opts = options or {}
+        if seed is not None:
+            self.trial_seed, self.trial_index = int(seed), 0
+        elif self.trial_seed is None:
+            self.trial_seed, self.trial_index = int(self.np_random.integers(2**31 - 1)), 0
+        else:
+            self.trial_index += 1
+        if "trial" in opts:
+            k = opts["trial"]
+            if isinstance(k, bool) or not isinstance(k, int | np.integer) or k < 0:
+                raise ValueError(f"options['trial'] must be an integer >= 0, got {k!r}")
+            self.trial_index = int(k)
         sc = opts.get("scenario")
         if sc is None:
-            sc = self.scenario_drawer(self.np_random, self.footage.geometry, self.footage.duration_s)
+            sc = self.scenario_drawer(self.trial_seed, self.trial_index)
         elif not isinstance(sc, Scenario):
-            raise ValueError(f"options['scenario'] must be a viva_sitl.gym.Scenario, got {type(sc).__name__}")
-        self.scenario = sc
-        return self._start(sc, int(self.np_random.integers(2**63 - 1)))
+            raise ValueError(
+                f"options['scenario'] must be a viva_sitl.evaluation.spec.Scenario, got {type(sc).__name__}"
+            )
+        if sc.start != "air":
+            raise ValueError(
+                f"gym environments start in the air, scenario {sc.index} starts on the {sc.start}"
+            )
+        return self._start(sc)
 
-    def _start(self, sc: Scenario, sim_seed: int) -> tuple[Any, dict[str, Any]]:
+    def _start(self, sc: Scenario) -> tuple[Any, dict[str, Any]]:
+        """Set the vehicle up as the trials runner does (viva_sitl.evaluation.runner.make_vehicle): the PX4
+        parameters back to the env's, then the scenario's (drawn ones + wind), the physics seed, the start pose."""
         veh = self.vehicle
-        veh.params.set("SIM_WIND_N", sc.wind_ned_m_s[0])
-        veh.params.set("SIM_WIND_E", sc.wind_ned_m_s[1])
-        veh.params.set("SIM_WIND_D", sc.wind_ned_m_s[2])
-        veh.params.set("SIM_GUST_STD", sc.gust_std_m_s)
+        params = veh.params
+        for name, value in self._params0.items():
+            if params.stored(name) != value:
+                params.set(name, value)
+        for name, value in sc.all_params():
+            params.set(name, value)
+        veh.sim.footage_offset_s = sc.footage_time_s
         if self._binder is not None:
-            self._binder(self, sc)
-        else:
-            veh.sim.footage_offset_s = sc.footage_offset_s
+            self._binder(self, sc)  # a vector env: its shared source and the global footage clock
+        if veh.sim.footage_offset_s != sc.footage_time_s:
+            sc = replace(sc, footage_time_s=veh.sim.footage_offset_s)  # the footage clock this copy flies
+        self.scenario = sc
         if isinstance(self.footage, SyntheticField):
             self.footage.forget_windows()  # the views depend on this episode's poses only
-        state = veh.reset(seed=sim_seed, pos_ned_m=sc.pos_ned_m, yaw_rad=sc.yaw_rad)
-        self._yaw_cmd_rad = sc.yaw_rad
+        yaw_rad = math.radians(sc.yaw_deg)
+        state = veh.reset(seed=sc.seed, pos_ned_m=sc.start_pos_ned_m, yaw_rad=yaw_rad)
+        self.monitor = TrialMonitor(sc, self.limits, gcs=True)
+        self.monitor.start(veh)
+        self._yaw_cmd_rad = yaw_rad
         if self.action_mode == "velocity":
             ap = veh.autopilot
             hold = PositionTarget(vel_ned_m_s=(0.0, 0.0, 0.0), yaw_rate_rad_s=0.0)
@@ -248,11 +309,13 @@ class LandingEnv(gym.Env[Any, NDArray[np.float32]]):
             ):
                 if not out.ok:
                     raise RuntimeError(f"cannot start offboard control: {out.reason}")
-        self.scorer.reset(state, self.footage_time_s)
+        self.scorer.reset(sc, state, self.footage_time_s)
         self._k = 0
         self._done = False
         self._frames.clear()
-        return self._obs(), self._info({})
+        info = self._info({})
+        info.update(trial_seed=self.trial_seed, trial_index=sc.index)
+        return self._obs(), info
 
     def _info(self, score: dict[str, Any], clipped: bool = False) -> dict[str, Any]:
         return {
@@ -271,8 +334,13 @@ class LandingEnv(gym.Env[Any, NDArray[np.float32]]):
         return self._finish(clipped)
 
     def _advance(self, a: NDArray[np.float64]) -> None:
-        """Fly one control period with the checked action (the Vehicle loop: step_command or step)."""
+        """Fly one control period with the checked action (the Vehicle loop: step_command or step), each physics
+        step judged by the trial monitor as in the trials runner; the period stops early when the trial ends. On
+        the ground afterwards: disarm (force, as a pilot's disarm/kill at touchdown), the trial ends "landed"
+        one physics step later."""
         veh = self.vehicle
+        mon = self.monitor
+        assert mon is not None
         n = self._physics_steps(self._k0 + self._k)
         dt_ctrl = n * veh.dt_s
         if self.action_mode == "attitude":
@@ -285,7 +353,10 @@ class LandingEnv(gym.Env[Any, NDArray[np.float32]]):
                 yaw_rad=self._yaw_cmd_rad,
                 thrust_n=veh.sim.params.hover_thrust_n * (1.0 + float(a[3])),
             )
-            veh.step_command(cmd, n)
+            for _ in range(n):
+                monitored_step(veh, mon, cmd)
+                if mon.log.end is not None:
+                    break
         else:
             target = PositionTarget(
                 vel_ned_m_s=(float(a[0]) * self.max_speed_m_s, float(a[1]) * self.max_speed_m_s,
@@ -295,22 +366,43 @@ class LandingEnv(gym.Env[Any, NDArray[np.float32]]):
             out = veh.autopilot.set_position_target(veh.time_s, target)
             if not out.ok:
                 raise ValueError(f"velocity setpoint refused: {out.reason}")
-            veh.step(n)
+            for _ in range(n):
+                monitored_step(veh, mon, None)
+                if mon.log.end is not None:
+                    break
+        if mon.log.end is None and veh.state.landed and veh.autopilot.armed:
+            veh.autopilot.disarm(veh.time_s, force=True)
+            monitored_step(veh, mon, None)
         self._k += 1
 
     def _finish(self, clipped: bool, new_view: NDArray[np.uint8] | None = None) -> tuple[Any, float, bool, bool, dict[str, Any]]:  # fmt: skip
-        veh = self.vehicle
-        s = veh.state
-        inside = veh.inside is None or veh.inside(float(s.pos_ned_m[0]), float(s.pos_ned_m[1]))
-        sc = self.scorer.score(s, self.footage_time_s, inside)
-        truncated = not sc.terminated and veh.time_s >= self.max_episode_s - 1e-9
+        veh, mon, sc = self.vehicle, self.monitor, self.scenario
+        assert mon is not None and sc is not None
+        step = self.scorer.step(veh.state, self.footage_time_s)
+        if step.terminated and mon.log.end is None:
+            mon.end(veh, "scorer", "the scorer ended the episode")
+        info = self._info(step.info, clipped)
+        reward = float(step.reward)
+        end = mon.log.end
+        if end is not None:
+            row = self.trial_row()
+            reward += float(self.scorer.final(row))
+            info["trial"] = row
         return (
             self._obs(new_view),
-            float(sc.reward),
-            bool(sc.terminated),
-            bool(truncated),
-            self._info(sc.info, clipped),
+            reward,
+            end is not None and end != "timeout",
+            end == "timeout",
+            info,
         )
+
+    def trial_row(self) -> dict[str, Any]:
+        """The trial's score row so far (final once the episode ended): viva_sitl.evaluation.scoring.score_trial over
+        the monitor's log, as `viva-sitl trials run` computes it (pilot "gym", wall_s null)."""
+        assert self.monitor is not None and self.scenario is not None
+        row = score_trial(self.scenario, self.monitor.log, self.world, self.trial_spec)
+        row["pilot"] = "gym"
+        return row
 
     def render(self) -> NDArray[np.uint8] | None:  # type: ignore[override]
         if self.render_mode is None:

@@ -11,7 +11,8 @@ How the decode is shared:
   decoded-tile LRU), so copies that render the same footage frame one after another decode it once; each copy then
   converts/warps only the region its own view reads (N views from one decoded frame).
 - Footage time = episode sim time + the copy's footage offset (Simulator.footage_offset_s). Randomised start times
-  share through a SMALL SET of offset slots (ScenarioRanges.offset_slots / footage_offsets_s): one FootageSource
+  share through a SMALL SET of offset slots (the spec's footage_time_slots; a spec drawing footage_time_s
+  uniformly gives each copy its own source, correct but not shared): one FootageSource
   (one sequential decoder) per slot, so N copies decode at most K frames per step (K = number of slots), never seek.
 - The copies step in lockstep on one global control clock (same physics steps per control step for all), and a
   copy that starts an episode at global time g gets offset = slot offset + g: copies of a slot stay on the same
@@ -36,7 +37,7 @@ from numpy.typing import NDArray
 from viva_sitl.footage import FootageSource, VideoSource, open_footage
 from viva_sitl.footage.synthetic import SyntheticField
 from viva_sitl.gym.env import LandingEnv
-from viva_sitl.gym.scenario import Scenario
+from viva_sitl.gym.scenario import Scenario, default_spec, resolve_spec, with_footage
 from viva_sitl.world import world_from_source
 
 
@@ -46,7 +47,7 @@ class SharedFootageVectorEnv(VectorEnv[Any, Any, Any]):
     def __init__(
         self,
         num_envs: int,
-        footage: str | Path = "synthetic",
+        footage: str | Path | None = None,
         render_mode: str | None = None,
         convert_shared: bool = False,
         **env_kwargs: Any,
@@ -57,6 +58,13 @@ class SharedFootageVectorEnv(VectorEnv[Any, Any, Any]):
         self.num_envs = int(num_envs)
         self.render_mode = render_mode
         self.convert_shared = convert_shared
+        spec = env_kwargs.pop("spec", None)
+        trial_spec = resolve_spec(spec) if spec is not None else None
+        if footage is None:
+            footage = trial_spec.footage[0] if trial_spec is not None else "synthetic"
+        env_kwargs["spec"] = (
+            default_spec(str(footage)) if trial_spec is None else with_footage(trial_spec, str(footage))
+        )
         cfg = env_kwargs.get("config")
         opts: dict[str, Any] = {}
         if cfg is not None:
@@ -100,7 +108,7 @@ class SharedFootageVectorEnv(VectorEnv[Any, Any, Any]):
     def _bind(self, env: LandingEnv, scenario: Scenario) -> None:
         """LandingEnv's reset hook: put `env` on its offset slot's source and align its footage offset and physics
         schedule to the global clock."""
-        base = scenario.footage_offset_s
+        base = scenario.footage_time_s
         sim = env.vehicle.sim
         if self._per_copy:
             sim.footage_offset_s = base + self._global_steps * env.vehicle.dt_s
