@@ -8,7 +8,7 @@
 
 seg-synth / det-synth: the synthetic field (exact ground truth), region split (val = ground east of the cut). They
 export the dataset into --data unless it is there (the same export as `viva-sitl dataset export --footage synthetic
---n 2400 --seed 1` / `--n 1000 --seed 2 --poses alt=10:30,tilt=0:15`), train with the recipe (time-budgeted) unless
+--n 2400 --seed 1` / `--n 800 --seed 2 --val 0.4 --poses alt=10:30,tilt=0:15`), train with the recipe (time-budgeted) unless
 --weights names an existing checkpoint, then report held-out mIoU + per-level IoU vs the majority level / mAP50 (+
 per class), ms per 640x480 frame and the load average.
 
@@ -307,14 +307,16 @@ SEG_SYNTH_SPEC = dict(
 DET_SYNTH_SPEC = dict(n=1000, seed=2, poses="alt=10:30,tilt=0:15")
 
 
-def _synthetic_dataset(data: Path, n: int, seed: int, poses: str) -> Path:
-    """The synthetic field exported as `viva-sitl dataset export --footage synthetic --n N --seed S [--poses P]`
-    (region split: val sees only the ground east of the cut); reused when `data` already holds it."""
+def _synthetic_dataset(data: Path, n: int, seed: int, val: float, poses: str) -> Path:
+    """The synthetic field exported as `viva-sitl dataset export --footage synthetic --n N --seed S --val V [--poses
+    P]` (region split: val sees only the ground east of the cut); reused when `data` already holds it."""
     from viva_sitl.perception.dataset import ExportSpec, PoseRanges, export_dataset
 
     if (data / "data.yaml").is_file():
         return data
-    spec = ExportSpec(footages=("synthetic",), n=n, seed=seed, poses=PoseRanges.parse(poses))
+    spec = ExportSpec(
+        footages=("synthetic",), n=n, seed=seed, val_fraction=val, poses=PoseRanges.parse(poses)
+    )
     t = time.perf_counter()
     counts = export_dataset(spec, data)
     print(f"exported {counts} to {data} in {time.perf_counter() - t:.0f} s", flush=True)
@@ -335,7 +337,9 @@ def bench_seg_synth(args: argparse.Namespace) -> str:
     torch.set_num_threads(args.threads)
     load0 = _load()
     spec = SEG_SYNTH_SPEC
-    data = _synthetic_dataset(Path(args.data), int(spec["n"]), int(spec["seed"]), str(spec["poses"]))
+    data = _synthetic_dataset(
+        Path(args.data), int(spec["n"]), int(spec["seed"]), float(spec["val"]), str(spec["poses"])
+    )
     weights = Path(args.weights) if args.weights else None
     trained = ""
     if weights is None or not weights.is_file():
@@ -406,7 +410,9 @@ def bench_det_synth(args: argparse.Namespace) -> str:
     torch.set_num_threads(args.threads)
     load0 = _load()
     spec = DET_SYNTH_SPEC
-    data = _synthetic_dataset(Path(args.data), int(spec["n"]), int(spec["seed"]), str(spec["poses"]))
+    data = _synthetic_dataset(
+        Path(args.data), int(spec["n"]), int(spec["seed"]), float(spec["val"]), str(spec["poses"])
+    )
     weights = Path(args.weights) if args.weights else None
     trained = ""
     if weights is None or not weights.is_file():

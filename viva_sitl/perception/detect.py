@@ -261,6 +261,12 @@ def export_onnx(weights: str | Path, imgsz: int) -> Path:
     """ONNX export of trained weights (ultralytics' exporter; needs the onnx package), next to them."""
     yolo = require_ultralytics()
     try:
+        import onnx  # noqa: F401
+    except ImportError:
+        raise PerceptionError(
+            "ONNX export needs the onnx package: pip install 'viva-sitl[perception-onnx]'"
+        ) from None
+    try:
         return Path(yolo(str(weights), task="detect").export(format="onnx", imgsz=imgsz, simplify=False))
     except Exception as exc:
         raise PerceptionError(f"ONNX export of {weights} failed: {str(exc).splitlines()[0][:160]}") from None
