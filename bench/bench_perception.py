@@ -392,11 +392,14 @@ def bench_seg_synth(args: argparse.Namespace) -> str:
         f"parameters, input {size[0]}x{size[1]} (frames resized); torch {torch.__version__}, {args.threads} threads",
         *([trained] if trained else []),
         "",
-        "| predictor | val mIoU | per-level IoU | pixel accuracy |",
-        "|---|---|---|---|",
-        f"| U-Net | {res['val_miou']:.3f} | {levels(res)} | {res['val_pixel_acc']:.3f} |",
+        "| predictor | val mIoU | per-level IoU | pixel accuracy | missed hazard | false hazard |",
+        "|---|---|---|---|---|---|",
+        f"| U-Net | {res['val_miou']:.3f} | {levels(res)} | {res['val_pixel_acc']:.3f} | "
+        f"{res['val_missed_hazard']:.3f} | {res['val_false_hazard']:.3f} |",
         f"| majority level ({majority}) everywhere | {base['val_miou']:.3f} | {levels(base)} | "
-        f"{base['val_pixel_acc']:.3f} |",
+        f"{base['val_pixel_acc']:.3f} | {base['val_missed_hazard']:.3f} | {base['val_false_hazard']:.3f} |",
+        "",
+        "(missed hazard: share of level 4-5 val pixels predicted 1-3; false hazard: share of level 1-3 predicted 4-5)",
         "",
         f"- Inference: Segmenter.predict on a 640x480 frame (resize to {size[0]}x{size[1]}, U-Net, argmax, resize "
         f"back): {ms:.1f} ms median of {args.n} ({1000.0 / ms:.1f} fps)",

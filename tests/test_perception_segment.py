@@ -147,6 +147,25 @@ def test_training_keeps_the_best_epoch_and_reports_it(tmp_path: Path) -> None:
     assert h2["epochs_run"] == 1 and len(h2["loss"]) >= 1
 
 
+def test_evaluate_counts_missed_and_false_hazards() -> None:
+    from viva_sitl.perception.segment import SegData, evaluate
+
+    truth = np.ones((4, 10), np.uint8)
+    truth[:, :2] = 5  # 8 hazard pixels, 32 safe
+    truth[0, 9] = 0  # unseen: ignored
+
+    class _Pred:
+        def predict(self, img: np.ndarray) -> np.ndarray:
+            p = np.ones((4, 10), np.uint8)
+            p[:, 0] = 5  # half the hazard found
+            p[:, 2] = 4  # 4 safe pixels called hazardous
+            return p
+
+    r = evaluate(_Pred(), SegData([np.zeros((4, 10, 3), np.uint8)], [truth]))  # type: ignore[arg-type]
+    assert r["val_missed_hazard"] == pytest.approx(4 / 8) and r["val_false_hazard"] == pytest.approx(4 / 31)
+    assert r["val_iou_by_level"][5] == pytest.approx(4 / 8) and set(r["val_iou_by_level"]) == {1, 5}
+
+
 def test_checkpoint_roundtrip_and_bad_input(tmp_path: Path) -> None:
     m = UNet(width=4, depth=3)
     m.input_size = (64, 48)  # type: ignore[assignment]

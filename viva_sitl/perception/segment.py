@@ -282,7 +282,11 @@ def evaluate(seg: Segmenter, data: SegData) -> dict[str, Any]:
         if cm[c, :].sum() > 0:
             iou[c] = float(tp / denom) if denom else 0.0
     total = cm[1:, :].sum()
+    hazard, safe = cm[4:, :].sum(), cm[1:4, :].sum()
     return {
+        # for a landing choice: share of level 4-5 ground called 1-3 (missed hazard) and of level 1-3 called 4-5
+        "val_missed_hazard": float(cm[4:, 1:4].sum() / hazard) if hazard else math.nan,
+        "val_false_hazard": float(cm[1:4, 4:].sum() / safe) if safe else math.nan,
         "val_miou": float(np.mean(list(iou.values()))) if iou else math.nan,
         "val_iou_by_level": iou,
         "val_pixel_acc": float(np.trace(cm) / total) if total else math.nan,
