@@ -453,6 +453,10 @@ def bench_det_synth(args: argparse.Namespace) -> str:
     for imgsz in sorted({args.imgsz, 640}):
         det = Detector(weights, imgsz=imgsz)
         rows.append((imgsz, _median_ms(lambda det=det: det.detect(frame), args.n)))  # type: ignore[misc]
+    onnx = weights.with_suffix(".onnx")
+    if onnx.is_file():  # exported at the training imgsz (fixed input)
+        det = Detector(onnx, imgsz=args.imgsz)
+        rows.append((f"{args.imgsz} (ONNX Runtime)", _median_ms(lambda: det.detect(frame), args.n)))
     import ultralytics
 
     lines = [
