@@ -3,6 +3,14 @@
     python bench/bench_perception.py sr  [--edsr-steps 200] [--out FILE]       (torch for EDSR: extra perception)
     python bench/bench_perception.py seg [--epochs 15] [--data DIR] [--out FILE]   (extra perception)
     python bench/bench_perception.py det [--epochs 15] [--imgsz 320] [--data DIR] [--out FILE]  (perception-yolo)
+    python bench/bench_perception.py seg-synth --data DIR --weights FILE [--time-limit-min 50]  (extra perception)
+    python bench/bench_perception.py det-synth --data DIR --weights FILE [--imgsz 480] [--time-limit-min 50]
+
+seg-synth / det-synth: the synthetic field (exact ground truth), region split (val = ground east of the cut). They
+export the dataset into --data unless it is there (the same export as `viva-sitl dataset export --footage synthetic
+--n 2400 --seed 1` / `--n 800 --seed 2 --val 0.4 --poses alt=10:30,tilt=0:15`), train with the recipe (time-budgeted) unless
+--weights names an existing checkpoint, then report held-out mIoU + per-level IoU vs the majority level / mAP50 (+
+per class), ms per 640x480 frame and the load average.
 
 seg / det: a Songdo dataset exported by `export_dataset` (footage split: train on stills 00003 + 00972, validate on
 03936, so validation never sees training ground), `--n` VAC images per still at alt 15..40 m, tilt 0..10 deg, seed 0;
@@ -293,9 +301,185 @@ def bench_det(args: argparse.Namespace) -> str:
     return "\n".join(lines)
 
 
+# `viva-sitl dataset export --footage synthetic --n N --seed S --val V [--poses P]`: the detector's val cut is further
+# west (val = east 40 %), else the held-out ground holds no person (the walkers and the crowd live west of E+36 m)
+SEG_SYNTH_SPEC = dict(n=2400, seed=1, val=0.2, poses="")
+DET_SYNTH_SPEC = dict(n=800, seed=2, val=0.4, poses="alt=10:30,tilt=0:15")
+
+
+def _synthetic_dataset(data: Path, n: int, seed: int, val: float, poses: str) -> Path:
+    """The synthetic field exported as `viva-sitl dataset export --footage synthetic --n N --seed S --val V [--poses
+    P]` (region split: val sees only the ground east of the cut); reused when `data` already holds it."""
+    from viva_sitl.perception.dataset import ExportSpec, PoseRanges, export_dataset
+
+    if (data / "data.yaml").is_file():
+        return data
+    spec = ExportSpec(
+        footages=("synthetic",), n=n, seed=seed, val_fraction=val, poses=PoseRanges.parse(poses)
+    )
+    t = time.perf_counter()
+    counts = export_dataset(spec, data)
+    print(f"exported {counts} to {data} in {time.perf_counter() - t:.0f} s", flush=True)
+    return data
+
+
+def _load() -> str:
+    return "/".join(f"{v:.1f}" for v in os.getloadavg())
+
+
+def bench_seg_synth(args: argparse.Namespace) -> str:
+    """The risk U-Net on the synthetic field (exact risk ground truth): train with the recipe unless --weights
+    already exists, then held-out (east of the cut) mIoU and per-level IoU vs the majority level, ms per frame."""
+    import torch
+
+    from viva_sitl.perception.segment import Segmenter, evaluate, load_split, save_segmenter, train_segmenter
+
+    torch.set_num_threads(args.threads)
+    load0 = _load()
+    spec = SEG_SYNTH_SPEC
+    data = _synthetic_dataset(
+        Path(args.data),
+        int(spec["n"]),
+        int(spec["seed"]),
+        float(spec["val"]),
+        str(spec["poses"]),
+    )
+    weights = Path(args.weights) if args.weights else None
+    trained = ""
+    if weights is None or not weights.is_file():
+        w, h = (int(v) for v in args.size.split("x"))
+        t = time.perf_counter()
+        model, hist = train_segmenter(
+            data, epochs=args.epochs, size=(w, h), width=args.width, batch=args.batch, lr=args.lr, seed=0,
+            time_limit_s=60.0 * args.time_limit_min, log=lambda line: print(line, flush=True),
+        )  # fmt: skip
+        if weights is not None:
+            save_segmenter(model, weights, (640, 480))
+        trained = (
+            f"- Trained here in {time.perf_counter() - t:.0f} s: {hist['epochs_run']} epochs, best epoch "
+            f"{hist.get('best_epoch')}; class weights {[round(v, 2) for v in hist['class_weights']]}"
+        )
+        seg = Segmenter(model, (w, h), (640, 480))
+    else:
+        seg = Segmenter.load(weights)
+    size = seg.input_size
+    val = load_split(data, "val", size)
+    train = load_split(data, "train", size)
+    counts = np.bincount(np.concatenate([m.ravel() for m in train.masks]), minlength=6)
+    majority = int(np.argmax(counts[1:]) + 1)
+
+    class _Const:
+        def predict(self, img: np.ndarray) -> np.ndarray:
+            return np.full(img.shape[:2], majority, np.uint8)
+
+    res = evaluate(Segmenter(seg.model, size, None), val)  # val images already at the model's input size
+    base = evaluate(_Const(), val)  # type: ignore[arg-type]
+    frame = cv2.imread(str(next((data / "images" / "val").glob("*.jpg"))))
+    ms = _median_ms(lambda: seg.predict(frame), args.n)
+    n_params = sum(p.numel() for p in seg.model.parameters())
+    share = counts[1:] / counts[1:].sum()
+
+    def levels(r: dict) -> str:
+        return ", ".join(f"L{k} {v:.3f}" for k, v in r["val_iou_by_level"].items())
+
+    return "\n".join([
+        "## Risk segmentation on the synthetic field (U-Net, ours)",
+        "",
+        f"- Data: {data} — {len(train.images)} train / {len(val.images)} val images (region split: val sees only "
+        "ground east of the cut); masks = the exact risk map + object buffers; train pixel share by level "
+        + ", ".join(f"L{k + 1} {v:.3f}" for k, v in enumerate(share) if v > 0),
+        f"- Model: {weights or 'in memory'}: U-Net width {seg.model.width}, depth {seg.model.depth}, {n_params} "
+        f"parameters, input {size[0]}x{size[1]} (frames resized); torch {torch.__version__}, {args.threads} threads",
+        *([trained] if trained else []),
+        "",
+        "| predictor | val mIoU | per-level IoU | pixel accuracy | missed hazard | false hazard |",
+        "|---|---|---|---|---|---|",
+        f"| U-Net | {res['val_miou']:.3f} | {levels(res)} | {res['val_pixel_acc']:.3f} | "
+        f"{res['val_missed_hazard']:.3f} | {res['val_false_hazard']:.3f} |",
+        f"| majority level ({majority}) everywhere | {base['val_miou']:.3f} | {levels(base)} | "
+        f"{base['val_pixel_acc']:.3f} | {base['val_missed_hazard']:.3f} | {base['val_false_hazard']:.3f} |",
+        "",
+        "(missed hazard: share of level 4-5 val pixels predicted 1-3; false hazard: share of level 1-3 predicted 4-5)",
+        "",
+        f"- Inference: Segmenter.predict on a 640x480 frame (resize to {size[0]}x{size[1]}, U-Net, argmax, resize "
+        f"back): {ms:.1f} ms median of {args.n} ({1000.0 / ms:.1f} fps)",
+        f"- Load average (1/5/15 min) at start / end: {load0} / {_load()} (nproc {os.cpu_count()})",
+    ])  # fmt: skip
+
+
+def bench_det_synth(args: argparse.Namespace) -> str:
+    """The detector on the synthetic field's people and cars: train with the from-scratch recipe unless --weights
+    already exists, then ultralytics' val on the held-out ground (mAP50 overall and per class), ms per frame."""
+    import torch
+
+    from viva_sitl.perception.detect import Detector, require_ultralytics, train_detector
+
+    torch.set_num_threads(args.threads)
+    load0 = _load()
+    spec = DET_SYNTH_SPEC
+    data = _synthetic_dataset(
+        Path(args.data),
+        int(spec["n"]),
+        int(spec["seed"]),
+        float(spec["val"]),
+        str(spec["poses"]),
+    )
+    weights = Path(args.weights) if args.weights else None
+    trained = ""
+    if weights is None or not weights.is_file():
+        t = time.perf_counter()
+        best, m = train_detector(
+            data, epochs=args.epochs, imgsz=args.imgsz, batch=args.batch, out_dir=args.det_dir, seed=0,
+            width=args.det_width, nbs=args.batch, time_h=args.time_limit_min / 60.0, classes=[0, 2], recipe=True,
+        )  # fmt: skip
+        trained = f"- Trained here in {time.perf_counter() - t:.0f} s: {best}"
+        if weights is not None:
+            import shutil
+
+            shutil.copyfile(best, weights)
+        weights = best
+    yolo = require_ultralytics()
+    met = yolo(str(weights), task="detect").val(
+        data=str((data / "data.yaml").resolve()), imgsz=args.imgsz, batch=args.batch, device="cpu", plots=False,
+        verbose=False, workers=0, classes=[0, 2],
+    )  # fmt: skip
+    names = met.names
+    per_class = ", ".join(
+        f"{names[int(c)]} {float(a):.3f}" for c, a in zip(met.box.ap_class_index, met.box.ap50, strict=True)
+    )
+    n_val = sum(1 for _ in (data / "images" / "val").glob("*.jpg"))
+    frame = cv2.imread(str(next((data / "images" / "val").glob("*.jpg"))))
+    rows = []
+    for imgsz in sorted({args.imgsz, 640}):
+        det = Detector(weights, imgsz=imgsz)
+        rows.append((imgsz, _median_ms(lambda det=det: det.detect(frame), args.n)))  # type: ignore[misc]
+    onnx = weights.with_suffix(".onnx")
+    if onnx.is_file():  # exported at the training imgsz (fixed input)
+        det = Detector(onnx, imgsz=args.imgsz)
+        rows.append((f"{args.imgsz} (ONNX Runtime)", _median_ms(lambda: det.detect(frame), args.n)))
+    import ultralytics
+
+    lines = [
+        "## Detection on the synthetic field (YOLO via ultralytics, from scratch)",
+        "",
+        f"- Data: {data} (region split; {n_val} val images of held-out ground; classes person 0, car 2)",
+        f"- Weights: {weights} (ultralytics {ultralytics.__version__}, torch {torch.__version__})",
+        *([trained] if trained else []),
+        f"- Held-out val at imgsz {args.imgsz}: mAP50 {met.box.map50:.3f}, mAP50-95 {met.box.map:.3f}, precision "
+        f"{met.box.mp:.3f}, recall {met.box.mr:.3f}; mAP50 per class: {per_class}",
+        "",
+        "| inference imgsz | ms per 640x480 frame (median) |",
+        "|---|---|",
+        *[f"| {s} | {ms:.1f} |" for s, ms in rows],
+        "",
+        f"- Load average (1/5/15 min) at start / end: {load0} / {_load()} (nproc {os.cpu_count()})",
+    ]
+    return "\n".join(lines)
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("part", choices=["sr", "seg", "det"])
+    ap.add_argument("part", choices=["sr", "seg", "det", "seg-synth", "det-synth"])
     ap.add_argument("--epochs", type=int, default=15)
     ap.add_argument("--imgsz", type=int, default=320)
     ap.add_argument("--n-images", type=int, default=60, help="seg/det: VAC images exported per Songdo still")
@@ -307,9 +491,18 @@ def main() -> int:
     ap.add_argument("--edsr-steps", type=int, default=200)
     ap.add_argument("--edsr-feats", type=int, default=24)
     ap.add_argument("--edsr-blocks", type=int, default=4)
+    ap.add_argument("--weights", default="", help="seg-synth/det-synth: evaluate this (train it if missing)")
+    ap.add_argument("--size", default="160x120", help="seg-synth: U-Net input WxH")
+    ap.add_argument("--width", type=int, default=16, help="seg-synth: U-Net base channels")
+    ap.add_argument("--batch", type=int, default=16, help="seg-synth/det-synth: batch")
+    ap.add_argument("--lr", type=float, default=3e-3, help="seg-synth: peak learning rate")
+    ap.add_argument("--time-limit-min", type=float, default=50.0, help="seg-synth/det-synth: training budget")
+    ap.add_argument("--det-width", type=float, default=0.125, help="det-synth: yolov8n channel multiple")
     ap.add_argument("--out", type=Path)
     args = ap.parse_args()
-    body = {"sr": bench_sr, "seg": bench_seg, "det": bench_det}[args.part](args)
+    parts = {"sr": bench_sr, "seg": bench_seg, "det": bench_det, "seg-synth": bench_seg_synth,
+             "det-synth": bench_det_synth}  # fmt: skip
+    body = parts[args.part](args)
     head = (
         f"# Perception benchmark: {args.part} (bench/bench_perception.py)\n\n"
         f"- Command: `python bench/bench_perception.py {' '.join(sys.argv[1:])}`\n"

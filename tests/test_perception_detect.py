@@ -65,12 +65,14 @@ def test_export_token_training_and_detection(tmp_path: Path) -> None:
     assert r.returncode == 0, r.stderr
     r = subprocess.run(
         [sys.executable, "-m", "viva_sitl", "perception", "train-detector", "--data", str(data), "--epochs", "1",
-         "--imgsz", "160", "--batch", "4", "-o", str(tmp_path / "det")],
+         "--imgsz", "160", "--batch", "4", "--nbs", "4", "--width", "0.125", "--recipe", "--classes", "0,2",
+         "--copy-best", str(tmp_path / "copy.pt"), "-o", str(tmp_path / "det")],
         cwd=REPO, capture_output=True, text=True, timeout=600,
     )  # fmt: skip
     assert r.returncode == 0, r.stderr[-2000:]
     best = tmp_path / "det" / "train" / "weights" / "best.pt"
     assert best.is_file() and "mAP50" in r.stdout
+    assert (tmp_path / "copy.pt").read_bytes() == best.read_bytes()  # the final best, copied where asked
     det = Detector(best, conf=1e-4, imgsz=160)
     assert det.names[0] == "person" and det.names[2] == "car"
     frame = cv2.imread(str(next((data / "images").rglob("*.jpg"))))
@@ -88,3 +90,27 @@ def test_export_token_training_and_detection(tmp_path: Path) -> None:
     (tmp_path / "junk.pt").write_bytes(b"not a model")
     with pytest.raises(PerceptionError, match="is not an ultralytics YOLO model"):
         Detector(tmp_path / "junk.pt")
+
+
+def test_scaled_architecture_is_thinner(tmp_path: Path) -> None:
+    pytest.importorskip(
+        "ultralytics", reason="needs the perception-yolo extra: pip install 'viva-sitl[perception-yolo]'"
+    )
+    pytest.importorskip(
+        "torchvision", reason="ultralytics needs torchvision: pip install 'viva-sitl[perception-yolo]'"
+    )
+    from viva_sitl.perception.detect import require_ultralytics, scaled_model_yaml
+
+    yolo = require_ultralytics()
+    path = scaled_model_yaml("yolov8n.yaml", 0.125, tmp_path)
+    assert Path(path).name == "yolov8n-w0.125.yaml"
+
+    def n_params(m: str) -> int:
+        return sum(p.numel() for p in yolo(m, task="detect").model.parameters())
+
+    base, thin = n_params("yolov8n.yaml"), n_params(path)
+    assert thin < base / 2.5  # channels halved: ~1/4 of the weights (the head keeps a floor)
+    with pytest.raises(PerceptionError, match="width/depth multiples"):
+        scaled_model_yaml("yolov8n.yaml", 0.0, tmp_path)
+    with pytest.raises(PerceptionError, match="cannot read the architecture"):
+        scaled_model_yaml("no-such-net.yaml", 0.125, tmp_path)

@@ -99,8 +99,21 @@ def perception_main(argv: list[str]) -> int:
     seg.add_argument("--size", default="320x240", help="training/inference size WxH (images are resized)")
     seg.add_argument("--width", type=_positive_int, default=16, help="U-Net base channels")
     seg.add_argument("--batch", type=_positive_int, default=8)
+    seg.add_argument("--lr", type=float, default=3e-3, help="peak learning rate (one-cycle)")
+    seg.add_argument(
+        "--patience", type=int, default=0, help="stop after N epochs without val mIoU gain (0: off)"
+    )
+    seg.add_argument("--time-limit-min", type=float, default=0.0, help="stop after the epoch crossing this")
+    seg.add_argument(
+        "--no-class-weights", action="store_true", help="plain cross-entropy (no rare-level weights)"
+    )
+    seg.add_argument(
+        "--no-augment", action="store_true", help="left-right flips only (no flips/turns/jitter)"
+    )
     seg.add_argument("--seed", type=int, default=0)
-    seg.add_argument("-o", "--output", required=True, help="checkpoint (.pt)")
+    seg.add_argument(
+        "-o", "--output", required=True, help="checkpoint (.pt): the best val epoch, written as it improves"
+    )
     det = sub.add_parser("train-detector", help="train a YOLO detector (ultralytics) on an exported dataset")
     det.add_argument("--data", required=True, help="dataset directory or its data.yaml")
     det.add_argument("--epochs", type=_positive_int, default=30)
@@ -108,6 +121,20 @@ def perception_main(argv: list[str]) -> int:
     det.add_argument("--batch", type=_positive_int, default=8)
     det.add_argument("--model", default="yolov8n.yaml", help="architecture .yaml (offline) or starting .pt")
     det.add_argument("--seed", type=int, default=0)
+    det.add_argument(
+        "--width", type=float, default=0.0, help="rescale the architecture's channels (n = 0.25)"
+    )
+    det.add_argument(
+        "--nbs", type=int, default=0, help="nominal batch (ultralytics: 64); = --batch: step each batch"
+    )
+    det.add_argument("--time-h", type=float, default=0.0, help="train this many hours (re-plans the epochs)")
+    det.add_argument("--patience", type=int, default=100, help="stop after N epochs without val gain")
+    det.add_argument("--classes", default="", help="keep only these class ids, e.g. 0,2 (person, car)")
+    det.add_argument(
+        "--recipe", action="store_true", help="from-scratch nadir recipe (flips, turns, mosaic...)"
+    )
+    det.add_argument("--copy-best", default="", help="also copy best.pt here each time it improves")
+    det.add_argument("--onnx", action="store_true", help="export the best weights to ONNX at the end")
     det.add_argument(
         "-o", "--output", required=True, help="output directory (weights in OUTPUT/train/weights)"
     )
@@ -159,9 +186,32 @@ def _train_segmenter(args: argparse.Namespace) -> int:
 
 
 def _train_detector(args: argparse.Namespace) -> int:
-    from viva_sitl.perception.detect import train_detector
+    import shutil
 
-    best, m = train_detector(args.data, epochs=args.epochs, imgsz=args.imgsz, model=args.model, batch=args.batch,
-                             out_dir=args.output, seed=args.seed)  # fmt: skip
+    from viva_sitl.perception.detect import export_onnx, train_detector
+
+    try:
+        classes = [int(c) for c in args.classes.split(",") if c.strip()]
+    except ValueError:
+        raise PerceptionError(f"--classes must be comma-separated class ids, got {args.classes!r}") from None
+    copy_to = Path(args.copy_best) if args.copy_best else None
+
+    def copy_best(best: Path, metrics: dict[str, float]) -> None:
+        if copy_to is not None:
+            tmp = copy_to.with_name(copy_to.name + ".tmp")
+            shutil.copyfile(best, tmp)
+            tmp.replace(copy_to)
+            print(f"best so far -> {copy_to} (val mAP50 {metrics['map50']:.3f})", flush=True)
+
+    best, m = train_detector(
+        args.data, epochs=args.epochs, imgsz=args.imgsz, model=args.model, batch=args.batch, out_dir=args.output,
+        seed=args.seed, width=args.width, nbs=args.nbs, time_h=args.time_h, patience=args.patience,
+        classes=classes or None, recipe=args.recipe, on_best=copy_best if copy_to else None,
+    )  # fmt: skip
     print(f"wrote {best} (val mAP50 {m['map50']:.3f}, mAP50-95 {m['map50_95']:.3f})")
+    if copy_to is not None:
+        shutil.copyfile(best, copy_to)
+    if args.onnx:
+        onnx = export_onnx(copy_to or best, args.imgsz)
+        print(f"wrote {onnx}")
     return 0

@@ -98,6 +98,56 @@ def load_split(data_dir: Path, split: str, size: tuple[int, int]) -> SegData:
     return out
 
 
+def class_weights(masks: list[U8], power: float = 0.5, max_ratio: float = 10.0) -> NDArray[np.float32]:
+    """Per-class loss weights (index 0..5) from the training masks: freq**-power over the levels present, clipped to
+    `max_ratio` times the smallest, scaled so the mean weight over labelled pixels is 1; 0 for absent levels and the
+    ignored 0. power 0.5 (inverse square root of the frequency) lifts rare levels without letting a few pixels rule."""
+    counts = np.zeros(N_CLASSES, np.int64)
+    for m in masks:
+        counts += np.bincount(np.asarray(m, np.int64).ravel(), minlength=N_CLASSES)[:N_CLASSES]
+    counts[0] = 0
+    w = np.zeros(N_CLASSES, np.float64)
+    present = counts > 0
+    if not present.any():
+        return w.astype(np.float32)
+    freq = counts[present] / counts.sum()
+    raw = freq**-power
+    w[present] = np.minimum(raw, max_ratio * raw.min())
+    w /= float((counts * w).sum() / counts.sum())
+    return w.astype(np.float32)
+
+
+def budget_lr(frac: float, lr: float, warmup: float = 0.05, final: float = 0.01) -> float:
+    """One-cycle shape over a fraction of a budget (time): linear warm-up from lr/10 over `warmup`, then cosine decay
+    to lr*final at frac = 1."""
+    frac = min(max(frac, 0.0), 1.0)
+    if frac < warmup:
+        return lr * (0.1 + 0.9 * frac / warmup)
+    c = (frac - warmup) / (1.0 - warmup)
+    return lr * (final + (1.0 - final) * 0.5 * (1.0 + math.cos(math.pi * c)))
+
+
+def augment(x: torch.Tensor, y: torch.Tensor, rng: np.random.Generator) -> tuple[torch.Tensor, torch.Tensor]:
+    """Free augmentations of a nadir view, per sample: the symmetries of the frame (left-right and up-down flips,
+    so also the half turn; and a transpose when the frame is square: all 8 quarter-turn symmetries) applied to the
+    image and its mask together; brightness/contrast jitter (x0.8..1.2, +-0.08) on the image only.
+    x (N, 3, H, W) in 0..1, y (N, H, W) -> new tensors."""
+    xs, ys = [], []
+    square = x.shape[-1] == x.shape[-2]
+    for i in range(x.shape[0]):
+        xi, yi = x[i], y[i]
+        if rng.random() < 0.5:
+            xi, yi = xi.flip(-1), yi.flip(-1)
+        if rng.random() < 0.5:
+            xi, yi = xi.flip(-2), yi.flip(-2)
+        if square and rng.random() < 0.5:
+            xi, yi = xi.transpose(-1, -2), yi.transpose(-1, -2)
+        gain, bias = rng.uniform(0.8, 1.2), rng.uniform(-0.08, 0.08)
+        xs.append((xi * gain + bias).clamp(0.0, 1.0))
+        ys.append(yi)
+    return torch.stack(xs).contiguous(), torch.stack(ys).contiguous()
+
+
 def train_segmenter(
     data_dir: Path,
     epochs: int = 10,
@@ -107,13 +157,33 @@ def train_segmenter(
     lr: float = 3e-3,
     seed: int = 0,
     progress: Callable[[int, float], None] | None = None,
+    *,
+    weighted: bool = True,
+    augmented: bool = True,
+    patience: int = 0,
+    time_limit_s: float = 0.0,
+    on_best: Callable[[UNet, dict[str, Any]], None] | None = None,
+    log: Callable[[str], None] | None = None,
 ) -> tuple[UNet, dict[str, Any]]:
-    """Train on images/train + masks/train of an exported dataset; returns the model and {loss, val_miou, ...}."""
+    """Train on images/train + masks/train of an exported dataset; returns the model and {loss, val_miou, ...}.
+
+    Recipe: cross-entropy with `class_weights` (weighted=True) so the rare levels count; `augment` (flips, half
+    turns, photometric jitter); AdamW with a one-cycle schedule (warm-up then cosine decay) over the steps of
+    `epochs`, or, with `time_limit_s` > 0, over that wall time (`budget_lr`: on a shared CPU the step rate is
+    unknown, so the schedule follows the clock and training stops when the budget is spent, `epochs` then being a
+    cap). With a val split the model is evaluated after every epoch (and at the end) and the best val mIoU is kept:
+    the returned model is the best evaluation's, and `on_best(model, metrics)` is called at every improvement, e.g.
+    to write a checkpoint; `patience` > 0 stops after that many epochs without improvement."""
+    import copy
+    import time
+
     w, h = size
     depth = 3
     if w % 2**depth or h % 2**depth:
         raise PerceptionError(f"segmenter size {w}x{h} must be a multiple of {2**depth} on both sides")
     data = load_split(data_dir, "train", size)
+    val_dir = Path(data_dir) / "images" / "val"
+    val = load_split(data_dir, "val", size) if val_dir.is_dir() and any(val_dir.glob("*.jpg")) else None
     torch.manual_seed(seed)
     rng = np.random.default_rng(seed)
     model = UNet(width, depth)
@@ -121,40 +191,74 @@ def train_segmenter(
     opt = torch.optim.AdamW(model.parameters(), lr=lr, weight_decay=1e-4)
     x_all = _to_tensor(data.images)
     y_all = torch.from_numpy(np.stack(data.masks).astype(np.int64))
+    cw = class_weights(data.masks) if weighted else None
+    weight = torch.from_numpy(cw) if cw is not None else None
     n = len(data.images)
     steps = max(1, epochs * math.ceil(n / batch))
-    sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=lr, total_steps=steps)
+    sched = (
+        torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=lr, total_steps=steps) if not time_limit_s else None
+    )
     losses: list[float] = []
+    curve: list[dict[str, Any]] = []
+    best: dict[str, Any] = {}
+    best_state: dict[str, torch.Tensor] | None = None
     step = 0
-    for _ in range(epochs):
+    t0 = time.perf_counter()
+    for epoch in range(epochs):
         order = rng.permutation(n)
         model.train()
         for k in range(0, n, batch):
+            if time_limit_s:
+                frac = (time.perf_counter() - t0) / time_limit_s
+                if frac >= 1.0 and losses:  # at least one step, whatever the budget
+                    break
+                for g in opt.param_groups:
+                    g["lr"] = budget_lr(frac, lr)
             idx = torch.from_numpy(order[k : k + batch])
             x, y = x_all[idx], y_all[idx]
-            if rng.random() < 0.5:
+            if augmented:
+                x, y = augment(x, y, rng)
+            elif rng.random() < 0.5:
                 x, y = x.flip(-1), y.flip(-1)
             if (y > 0).sum() == 0:
                 continue
-            loss = nn.functional.cross_entropy(model(x), y, ignore_index=0)
+            loss = nn.functional.cross_entropy(model(x), y, weight=weight, ignore_index=0)
             opt.zero_grad()
             loss.backward()
             opt.step()
-            sched.step()
+            if sched is not None and step + 1 < steps:
+                sched.step()
             losses.append(float(loss.detach()))
             if progress is not None:
                 progress(step, losses[-1])
             step += 1
-    model.eval()
+        model.eval()
+        row: dict[str, Any] = {"epoch": epoch + 1, "step": step, "time_s": time.perf_counter() - t0,
+                               "loss": float(np.mean(losses[-max(1, math.ceil(n / batch)) :])) if losses else math.nan}  # fmt: skip
+        if val is not None:
+            row.update(evaluate(Segmenter(model, size, None), val))
+            if not best or row["val_miou"] > best["val_miou"]:
+                best = dict(row)
+                best_state = copy.deepcopy(model.state_dict())
+                if on_best is not None:
+                    on_best(model, best)
+        curve.append(row)
+        if log is not None:
+            log(" ".join(f"{k}={v:.4f}" if isinstance(v, float) else f"{k}={v}" for k, v in row.items()))
+        if patience and best and epoch + 1 - int(best["epoch"]) >= patience:
+            break
+        if time_limit_s and time.perf_counter() - t0 > time_limit_s:
+            break
     if not losses:
         raise PerceptionError(f"{data_dir}: the training masks hold no labelled pixel (all 0)")
-    history: dict[str, Any] = {"loss": losses, "train_images": n}
-    if (Path(data_dir) / "images" / "val").is_dir() and any(
-        (Path(data_dir) / "images" / "val").glob("*.jpg")
-    ):
-        val = load_split(data_dir, "val", size)
-        seg = Segmenter(model, size, None)
-        history.update(evaluate(seg, val))
+    if best_state is not None:
+        model.load_state_dict(best_state)
+    model.eval()
+    history: dict[str, Any] = {"loss": losses, "train_images": n, "curve": curve, "epochs_run": len(curve),
+                               "class_weights": None if cw is None else cw.tolist()}  # fmt: skip
+    if best:
+        history.update({k: v for k, v in best.items() if k.startswith("val_")})
+        history["best_epoch"] = best["epoch"]
     return model, history
 
 
@@ -178,7 +282,11 @@ def evaluate(seg: Segmenter, data: SegData) -> dict[str, Any]:
         if cm[c, :].sum() > 0:
             iou[c] = float(tp / denom) if denom else 0.0
     total = cm[1:, :].sum()
+    hazard, safe = cm[4:, :].sum(), cm[1:4, :].sum()
     return {
+        # for a landing choice: share of level 4-5 ground called 1-3 (missed hazard) and of level 1-3 called 4-5
+        "val_missed_hazard": float(cm[4:, 1:4].sum() / hazard) if hazard else math.nan,
+        "val_false_hazard": float(cm[1:4, 4:].sum() / safe) if safe else math.nan,
         "val_miou": float(np.mean(list(iou.values()))) if iou else math.nan,
         "val_iou_by_level": iou,
         "val_pixel_acc": float(np.trace(cm) / total) if total else math.nan,
@@ -333,13 +441,31 @@ def train_segmenter_cli(args: Any) -> int:
     if poses:
         meta = json.loads(poses[0].read_text())
         frame_size = (int(meta["width_px"]), int(meta["height_px"]))
+    out = Path(args.output)
+
+    def keep_best(
+        model: UNet, metrics: dict[str, Any]
+    ) -> None:  # the best epoch so far, written as it improves
+        tmp = out.with_name(out.name + ".tmp")
+        save_segmenter(model, tmp, frame_size)
+        tmp.replace(out)
+
+    def log(line: str) -> None:
+        print(line, flush=True)
+
     with tqdm(unit="step", disable=None) as bar:
-        model, hist = train_segmenter(data_dir, args.epochs, (w, h), args.width, args.batch, seed=args.seed,
-                                      progress=lambda s, loss: bar.update(1))  # fmt: skip
-    save_segmenter(model, args.output, frame_size)
+        model, hist = train_segmenter(
+            data_dir, args.epochs, (w, h), args.width, args.batch, lr=args.lr, seed=args.seed,
+            progress=lambda s, loss: bar.update(1), weighted=not args.no_class_weights,
+            augmented=not args.no_augment, patience=args.patience, time_limit_s=60.0 * args.time_limit_min,
+            on_best=keep_best, log=log,
+        )  # fmt: skip
+    save_segmenter(model, out, frame_size)
     miou = hist.get("val_miou", math.nan)
+    iou = ", ".join(f"L{k} {v:.2f}" for k, v in hist.get("val_iou_by_level", {}).items())
     print(
-        f"wrote {args.output} (U-Net width {args.width}, {hist['train_images']} train images, loss "
-        f"{hist['loss'][0]:.3f} -> {hist['loss'][-1]:.3f}, val mIoU {miou:.3f})"
+        f"wrote {out} (U-Net width {args.width}, {hist['train_images']} train images, {hist['epochs_run']} epochs, "
+        f"loss {hist['loss'][0]:.3f} -> {hist['loss'][-1]:.3f}, val mIoU {miou:.3f}"
+        + (f" at epoch {hist['best_epoch']}: {iou})" if "best_epoch" in hist else ")")
     )
     return 0
