@@ -504,16 +504,20 @@ class Companion:
         from mavsdk.asyncio.plugins.action import ActionError
         from mavsdk.asyncio.plugins.telemetry import FlightMode
 
-        for attempt in range(1, 4):
+        def landing() -> bool:  # the command took effect even if its ACK was lost (or it already landed)
+            return bool(tr.values["mode"] == FlightMode.LAND or not tr.values["armed"])
+
+        attempts = 6  # a starved machine can lose several ACKs in a row; the mode check sees what happened
+        for attempt in range(1, attempts + 1):
             try:
                 await action.land()
                 return
             except ActionError as exc:
                 with contextlib.suppress(MissionFailed):
-                    await tr.wait_until(lambda: tr.values["mode"] == FlightMode.LAND, 3.0, "LAND")
-                if tr.values["mode"] == FlightMode.LAND:
+                    await tr.wait_until(landing, 5.0, "LAND")
+                if landing():
                     return
-                if attempt == 3:
+                if attempt == attempts:
                     raise MissionFailed(f"land refused: {exc}") from exc
                 log(f"land: {exc}; retrying")
 
