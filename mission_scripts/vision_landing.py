@@ -214,6 +214,9 @@ def load_models(args: argparse.Namespace) -> tuple[Any | None, Any | None]:
         from viva_sitl.perception.detect import Detector
 
         det = Detector(args.detector, conf=args.conf, imgsz=args.imgsz)
+        # warm-up before the trigger: ultralytics' first predict sets itself up (4.4 s measured at load 6.5),
+        # which would otherwise delay the first look after "land now"
+        det.detect(np.zeros((480, 640, 3), np.uint8))
     if seg is None:
         log("no --segmenter: ground risk from detections only (seen ground counts as level 1)")
     if det is None:
