@@ -177,6 +177,8 @@ def clip_convex_polygon(poly_xy: F64, halfplanes: Sequence[F64]) -> F64:
         d = pts @ a[:2] + a[2]
         if np.all(d >= 0):
             continue  # every vertex inside: the loop below would rebuild the same polygon
+        if np.all(d < 0):
+            return np.empty((0, 2))  # every vertex outside: the loop below would keep nothing
         out: list[F64] = []
         n = len(pts)
         for i in range(n):
