@@ -779,3 +779,21 @@ def test_land_and_return_prevent_arming_as_px4() -> None:
     assert f.run(60.0, until=lambda f: not f.ap.armed)  # returned, landed, auto-disarmed
     assert f.ap.mode == FlightMode.AUTO_LOITER  # back to the mode before Return: armable again
     assert f.ap.arm(f.t).ok
+
+
+def test_limits_follow_parameter_changes() -> None:
+    """`limits` keeps its last result for the 250 Hz loop: a parameter set, a new airframe or other arguments
+    must still give fresh limits."""
+    from viva_sitl.autopilot.tasks.common import auto_limits, limits
+
+    ap = Autopilot(ParamStore(), EavParams())
+    ctx = ap.ctx
+    first = auto_limits(ctx)
+    assert auto_limits(ctx) is first  # unchanged: the same object
+    ctx.params.set("MPC_ACC_HOR", 2.0)
+    assert auto_limits(ctx).slew_acc_xy_m_s2 == 2.0 and auto_limits(ctx).brake_acc_xy_m_s2 == 2.0
+    assert limits(ctx, xy=1.5, auto=False).vel_xy_m_s == 1.5
+    assert math.isinf(limits(ctx, xy=1.5, auto=False).slew_acc_xy_m_s2)
+    assert limits(ctx, xy=1.5, up=0.7, auto=False).vel_up_m_s == 0.7
+    ctx.params.set("SIM_MASS", 2.0 * ctx.params.get("SIM_MASS"))  # a new airframe object
+    assert auto_limits(ctx).thrust_max_n == ctx.eav_params().max_thrust_n != first.thrust_max_n

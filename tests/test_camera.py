@@ -555,3 +555,43 @@ def test_render_view_helper() -> None:
     ref = Renderer(CameraParams(), GEOM_1080).render(LazyPyramid(footage), *pose).image_bgr
     assert img.shape == (480, 640, 3) and img.dtype == np.uint8
     assert np.array_equal(img, ref)
+
+
+def test_renderer_view_cache_matches_fresh_renderers() -> None:
+    """The renderer keeps the last pose's maps (the simulator plans its region with them just before rendering):
+    a long-lived renderer over repeated poses, a changed mount and a lower-resolution frame renders exactly what a
+    fresh renderer does, and its results own their homography."""
+    footage = texture(1080, 1920, seed=12)
+    half = u8(cv2.resize(footage, (960, 540), interpolation=cv2.INTER_AREA))
+    p = CameraParams()
+    tilted = dataclasses.replace(p, mount_pitch_deg=20.0)
+    live = Renderer(p, GEOM_1080)
+    poses = [
+        ((0.0, 0.0, -40.0), (0.0, 0.0, 0.0), p, footage),
+        ((0.0, 0.0, -40.0), (0.0, 0.0, 0.0), p, footage),  # the same pose again: cached maps
+        ((0.0, 0.0, -40.0), (0.0, 0.0, 0.0), p, half),  # same pose, another frame size
+        ((3.0, -2.0, -35.0), (0.05, -0.02, 0.4), p, footage),
+        ((3.0, -2.0, -35.0), (0.05, -0.02, 0.4), tilted, footage),  # new params object, same pose
+        ((3.0, -2.0, -35.0), (0.05, -0.02, 0.4), p, footage),
+    ]
+    for pos, att, params, img in poses:
+        live.params = params
+        got = live.render(LazyPyramid(img), pos, att)
+        want = Renderer(params, GEOM_1080).render(LazyPyramid(img), pos, att)
+        assert np.array_equal(got.image_bgr, want.image_bgr)
+        assert got.coverage == want.coverage and got.pyramid_level == want.pyramid_level
+        assert np.array_equal(got.homography, want.homography) and got.homography.flags.writeable
+        got.homography[:] = 0.0  # the caller's copy: the renderer's cached map is untouched
+    again = live.render(LazyPyramid(footage), *poses[-1][:2])
+    assert np.array_equal(again.image_bgr, Renderer(p, GEOM_1080).render(footage, *poses[-1][:2]).image_bgr)
+
+
+def test_clip_convex_polygon_unclipped_and_clipped() -> None:
+    from viva_sitl.camera.projection import clip_convex_polygon
+
+    square = np.array([[0.0, 0.0], [2.0, 0.0], [2.0, 2.0], [0.0, 2.0]])
+    same = clip_convex_polygon(square, [np.array([1.0, 0.0, 1.0])])  # x >= -1: nothing clipped
+    assert np.array_equal(same, square) and same is not square
+    half = clip_convex_polygon(square, [np.array([-1.0, 0.0, 1.0])])  # x <= 1
+    assert np.allclose(half, [[0.0, 0.0], [1.0, 0.0], [1.0, 2.0], [0.0, 2.0]])
+    assert clip_convex_polygon(square, [np.array([1.0, 0.0, -5.0])]).shape == (0, 2)

@@ -370,3 +370,52 @@ def test_a_killed_ingest_process_resumes_on_rerun(tmp_path: Path) -> None:
         assert isinstance(src, TileSource)
         for i in (0, done, frames - 1):
             assert np.array_equal(src.frame(i), video.frame(i))
+
+
+def _tiles_under_numpy(ts: int, x0: int, y0: int, x1: int, y1: int, quad: np.ndarray, margin: float) -> list:
+    """The general (vectorised) separating-axis selection, as tiles_under computed it before its per-tile loop."""
+    mx, my = np.meshgrid(np.arange(x0 // ts, (x1 - 1) // ts + 1), np.arange(y0 // ts, (y1 - 1) // ts + 1))
+    gx, gy = mx.ravel().astype(np.int64), my.ravel().astype(np.int64)
+    rx0, ry0 = gx * ts - margin, gy * ts - margin
+    rx1, ry1 = (gx + 1) * ts - 1 + margin, (gy + 1) * ts - 1 + margin
+    keep = np.ones(gx.shape, bool)
+    centre = quad.mean(axis=0)
+    for i in range(len(quad)):
+        e = quad[(i + 1) % len(quad)] - quad[i]
+        n = np.array([e[1], -e[0]])
+        if np.dot(n, centre - quad[i]) > 0:
+            n = -n
+        lo = np.where(n[0] > 0, rx0, rx1) * n[0] + np.where(n[1] > 0, ry0, ry1) * n[1]
+        keep &= lo <= float(np.max(quad @ n)) + 1e-9
+    return [(int(x), int(y)) for x, y in zip(gx[keep], gy[keep], strict=True)]
+
+
+def test_tiles_under_equals_the_vectorised_selection() -> None:
+    """tiles_under tests each tile in plain floats (few tiles per call): the same tiles, in the same order, as the
+    vectorised separating-axis test, over random footprints (rotated, sheared, touching tile edges)."""
+    from types import SimpleNamespace
+
+    from viva_sitl.footage.tiles import TileCache
+
+    rng = np.random.default_rng(5)
+    ts = 256
+    cache = SimpleNamespace(layout=SimpleNamespace(tile_px=ts))
+    dropped = 0
+    for k in range(300):
+        c = rng.uniform(0, 3000, 2)
+        quad = (
+            c + rng.uniform(-400, 400, (4, 2))
+            if k % 3
+            else c + np.array([[0, 0], [512, 0], [512, 256], [0, 256]])
+        )
+        hull = cv2.convexHull(quad.astype(np.float32)).reshape(-1, 2).astype(np.float64)
+        if k % 3 == 0:
+            hull = quad.astype(np.float64)  # axis-aligned, edges on tile boundaries
+        x0, y0 = (max(0, int(v) - 40) for v in hull.min(axis=0))
+        x1, y1 = (int(v) + 41 for v in hull.max(axis=0))
+        margin = float(rng.choice([0.0, 1.5, 9.0]))
+        got = TileCache.tiles_under(cache, 0, x0, y0, x1, y1, hull, margin)  # type: ignore[arg-type]
+        assert got == _tiles_under_numpy(ts, x0, y0, x1, y1, hull, margin)
+        dropped += len(got) < len(TileCache.tiles_under(cache, 0, x0, y0, x1, y1))  # type: ignore[arg-type]
+    assert dropped > 100  # the footprint test did exclude tiles of the bounding box
+    assert TileCache.tiles_under(cache, 0, 0, 0, 600, 300) == [(x, y) for y in (0, 1) for x in (0, 1, 2)]  # type: ignore[arg-type]

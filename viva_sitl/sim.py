@@ -35,10 +35,9 @@ from viva_sitl.camera import (
     RenderResult,
     camera_extrinsics,
     camera_intrinsics,
-    footage_to_image_homography,
 )
 from viva_sitl.camera.projection import cam_rot_ned, camera_center_ned
-from viva_sitl.camera.pyramid import RegionPyramid, level_from_source
+from viva_sitl.camera.pyramid import RegionPyramid
 from viva_sitl.config import SimConfig
 from viva_sitl.dynamics import EavCommand, EavParams, EavState, step
 from viva_sitl.footage import FootageSource, open_footage
@@ -232,16 +231,9 @@ class Simulator:
         Repeats the renderer's own homography and level choice (same operations, so the same numbers);
         `render` checks the level it actually used and falls back to the whole frame if they ever disagree.
         """
-        geom, cam = self.footage.geometry, self.camera
+        cam = self.camera
         w0, h0 = region.width_px, region.height_px
-        h_f2i = footage_to_image_homography(geom, s.pos_ned_m, s.att_rpy_rad, cam)
-        if (w0, h0) == (geom.width_px, geom.height_px):
-            geom_to_src = np.eye(3)
-        else:
-            geom_to_src = level_from_source(geom.width_px, geom.height_px, w0, h0)
-        h_src2i = h_f2i @ np.linalg.inv(geom_to_src)
-        vac_to_src = np.linalg.inv(h_src2i)
-        vac_to_src /= np.max(np.abs(vac_to_src))
+        _, vac_to_src = self.renderer.view_maps(s.pos_ned_m, s.att_rpy_rad, w0, h0)  # kept for its render
         level, blend_w, _ = self.renderer.choose_lod(vac_to_src, region.max_level)
         blend = blend_w > 0.0
         if exact and not (region.exact_level(level) and (not blend or region.exact_level(level + 1))):

@@ -54,6 +54,8 @@ class FlightContext:
     _bat_rev: int = -1
     _bat_cfg: BatteryConfig = field(default_factory=BatteryConfig)
     _gains_rev: int = -1
+    # tasks/common.limits' last (key, airframe, Limits): it runs at 250 Hz
+    _limits_cache: tuple[object, EavParams, object] | None = field(default=None, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         self.home = np.array([0.0, 0.0, float(self.base_eav.ground_z_ned_m)])

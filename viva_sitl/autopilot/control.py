@@ -136,7 +136,7 @@ class PositionController:
         acc_ff = np.asarray(sp.acc_ned_m_s2, dtype=np.float64)
         vel_sp = vel_ff.copy()
         # Horizontal: P on the 2D error, direction preserved, braking-limited.
-        if np.all(np.isfinite(pos_sp[:2])):
+        if math.isfinite(pos_sp[0]) and math.isfinite(pos_sp[1]):  # (np.all costs ~5 µs per call)
             err = pos_sp[:2] - pos_ned_m[:2]
             dist = float(np.hypot(err[0], err[1]))
             v_xy = np.zeros(2)
@@ -149,7 +149,7 @@ class PositionController:
             v_z = math.copysign(_braking_speed(abs(err_z), g.pos_z_p, limits.brake_acc_z_m_s2), err_z)
             vel_sp[2] = v_z + (vel_ff[2] if math.isfinite(vel_ff[2]) else 0.0)
         # Speed limits (PX4: horizontal norm, vertical up/down separately).
-        if np.all(np.isfinite(vel_sp[:2])):
+        if math.isfinite(vel_sp[0]) and math.isfinite(vel_sp[1]):
             n = float(np.hypot(vel_sp[0], vel_sp[1]))
             if n > limits.vel_xy_m_s:
                 vel_sp[:2] *= limits.vel_xy_m_s / n
@@ -165,7 +165,7 @@ class PositionController:
             return vel_sp, acc_ff
         prev = np.where(np.isfinite(self.last_vel_sp_ned_m_s), self.last_vel_sp_ned_m_s, vel_ned_m_s)
         vel_sp, acc_ff = vel_sp.copy(), acc_ff.copy()
-        if math.isfinite(limits.slew_acc_xy_m_s2) and np.all(np.isfinite(vel_sp[:2])):
+        if math.isfinite(limits.slew_acc_xy_m_s2) and math.isfinite(vel_sp[0]) and math.isfinite(vel_sp[1]):
             dv = vel_sp[:2] - prev[:2]
             n = float(np.hypot(dv[0], dv[1]))
             max_dv = limits.slew_acc_xy_m_s2 * dt_s

@@ -170,11 +170,15 @@ def ground_footprint(pos_ned_m: ArrayLike, att_rpy_rad: ArrayLike, params: Camer
 def clip_convex_polygon(poly_xy: F64, halfplanes: Sequence[F64]) -> F64:
     """Clip a convex polygon (N, 2) by half-planes a . (x, y, 1) >= 0 (Sutherland-Hodgman; hand-written: OpenCV's
     intersectConvexConvex needs bounded polygons, and these half-planes are unbounded)."""
-    pts = np.asarray(poly_xy, dtype=np.float64)
+    pts = np.array(poly_xy, dtype=np.float64)  # a copy: returned as is when nothing is clipped
     for a in halfplanes:
         if len(pts) == 0:
             break
         d = pts @ a[:2] + a[2]
+        if np.all(d >= 0):
+            continue  # every vertex inside: the loop below would rebuild the same polygon
+        if np.all(d < 0):
+            return np.empty((0, 2))  # every vertex outside: the loop below would keep nothing
         out: list[F64] = []
         n = len(pts)
         for i in range(n):

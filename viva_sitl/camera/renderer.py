@@ -107,6 +107,36 @@ class Renderer:
         self._fill_u8 = np.array(params.fill_bgr, dtype=np.uint8)
         # ideal-pinhole pixel seen by each distorted pixel (precomputed once; None without distortion)
         self._und_map = distortion_source_map(params, self.k) if params.has_distortion else None
+        # the last view's maps (see `view_maps`): the simulator plans its footage region with the same pose just
+        # before rendering, so each is computed once per frame
+        self._view_key: tuple[object, ...] | None = None
+        self._view: tuple[F64, F64] = (np.eye(3), np.eye(3))
+        self._lod_key: tuple[object, ...] | None = None
+        self._lod: tuple[int, float, float] = (0, 0.0, math.nan)
+
+    def view_maps(
+        self, pos_ned_m: ArrayLike, att_rpy_rad: ArrayLike, src_w: int, src_h: int
+    ) -> tuple[F64, F64]:
+        """(H geometry px -> VAC px, VAC px -> source px of a src_w x src_h level-0 image, scaled to max |m| = 1)
+        at a pose. The last result is kept (keyed by the pose's values, the size, the geometry and the params
+        objects, by identity): the arrays are read-only."""
+        pos = _vec3("pos_ned_m", pos_ned_m)
+        att = _vec3("att_rpy_rad", att_rpy_rad)
+        # the geometry and params objects themselves, compared by identity (an id() could be reused)
+        key = (pos.tobytes(), att.tobytes(), src_w, src_h, self.geometry, self.params)
+        old = self._view_key
+        if old is not None and old[:4] == key[:4] and old[4] is key[4] and old[5] is key[5]:
+            return self._view
+        gw, gh = self.geometry.width_px, self.geometry.height_px
+        geom_to_src = np.eye(3) if (src_w, src_h) == (gw, gh) else level_from_source(gw, gh, src_w, src_h)
+        h_f2i = footage_to_image_homography(self.geometry, pos, att, self.params)  # geometry px -> VAC
+        h_src2i = h_f2i @ np.linalg.inv(geom_to_src)
+        vac_to_src = np.linalg.inv(h_src2i)
+        vac_to_src /= np.max(np.abs(vac_to_src))
+        h_f2i.setflags(write=False)
+        vac_to_src.setflags(write=False)
+        self._view_key, self._view = key, (h_f2i, vac_to_src)
+        return self._view
 
     def _image_scale(self, image: U8) -> F64:
         """Geometry pixels -> pixels of the given level-0 image (the frame may be decoded at another resolution)."""
@@ -131,6 +161,16 @@ class Renderer:
         (lod - level, 0 below level 0 and at the deepest level). When the centre ray misses the ground (steep tilt),
         the scale is the smallest over a 5x5 grid of valid pixels.
         """
+        p = self.params
+        key = (vac_to_src.tobytes(), max_level, p)
+        old = self._lod_key
+        if old is not None and old[:2] == key[:2] and old[2] is p:
+            return self._lod
+        self._lod = self._choose_lod(vac_to_src, max_level)
+        self._lod_key = key
+        return self._lod
+
+    def _choose_lod(self, vac_to_src: F64, max_level: int) -> tuple[int, float, float]:
         p = self.params
         cu, cv = (p.width_px - 1) / 2.0, (p.height_px - 1) / 2.0
         rho = _footprint_scale(vac_to_src, cu, cv)
@@ -191,12 +231,10 @@ class Renderer:
             raise ValueError("camera noise_std > 0 needs a numpy Generator (rng)")
         src0 = _level0_image(pyramid)
         check_image(src0)
-        geom_to_src = self._image_scale(src0)
-        h_f2i = footage_to_image_homography(self.geometry, pos, att, p)  # geometry px -> VAC
-        h_src2i = h_f2i @ np.linalg.inv(geom_to_src)
-        vac_to_src = np.linalg.inv(h_src2i)
-        vac_to_src /= np.max(np.abs(vac_to_src))
+        self._image_scale(src0)  # checks the frame's aspect
         src_w, src_h = int(src0.shape[1]), int(src0.shape[0])
+        h_f2i, vac_to_src = self.view_maps(pos, att, src_w, src_h)
+        h_f2i = h_f2i.copy()  # the result's own (the cached one stays read-only)
         cam_rot_body, _ = camera_extrinsics(p, att)
         shape = (p.height_px, p.width_px) + src0.shape[2:]
 

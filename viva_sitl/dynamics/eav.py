@@ -10,7 +10,6 @@ No I/O, no clock: the caller passes the state, the command, the parameters and t
 from __future__ import annotations
 
 import math
-from dataclasses import replace
 
 import numpy as np
 from numpy.typing import NDArray
@@ -138,8 +137,8 @@ def step(
         if not landed:
             # Lift-off this step: stay on the ground plane, with no downward velocity, but not "landed".
             pass
-    return replace(
-        state,
+    # every field given: the constructor directly (dataclasses.replace walks the fields; this runs at 250 Hz)
+    return type(state)(
         time_s=state.time_s + params.dt_s,
         step=state.step + 1,
         pos_ned_m=vec3(new_pos),

@@ -302,28 +302,30 @@ class TileCache:
         """(tx, ty) of the tiles of level `level` meeting [x0, x1) x [y0, y1); with `quad` (a convex polygon in
         level pixel coordinates, e.g. the VAC footprint) only those within `margin_px` of it (separating axes)."""
         ts = self.layout.tile_px
-        txs = np.arange(x0 // ts, (x1 - 1) // ts + 1)
-        tys = np.arange(y0 // ts, (y1 - 1) // ts + 1)
-        mx, my = np.meshgrid(txs, tys)
-        gx: NDArray[np.int64] = mx.ravel().astype(np.int64)
-        gy: NDArray[np.int64] = my.ravel().astype(np.int64)
-        if quad is not None and len(quad) >= 3:
-            # tile pixel centres span [t * ts, (t + 1) * ts - 1]; grown by the margin
-            rx0, ry0 = gx * ts - margin_px, gy * ts - margin_px
-            rx1, ry1 = (gx + 1) * ts - 1 + margin_px, (gy + 1) * ts - 1 + margin_px
-            keep = np.ones(gx.shape, bool)
-            q = np.asarray(quad, np.float64)
-            centre = q.mean(axis=0)
-            for i in range(len(q)):
-                e = q[(i + 1) % len(q)] - q[i]
-                n = np.array([e[1], -e[0]])
-                if np.dot(n, centre - q[i]) > 0:
-                    n = -n  # outward
-                h = float(np.max(q @ n))
-                lo = np.where(n[0] > 0, rx0, rx1) * n[0] + np.where(n[1] > 0, ry0, ry1) * n[1]
-                keep &= lo <= h + 1e-9
-            gx, gy = gx[keep], gy[keep]
-        return [(int(x), int(y)) for x, y in zip(gx, gy, strict=True)]
+        txs = range(x0 // ts, (x1 - 1) // ts + 1)
+        grid = [(x, y) for y in range(y0 // ts, (y1 - 1) // ts + 1) for x in txs]  # row-major
+        if quad is None or len(quad) < 3:
+            return grid
+        # the footprint's edges as outward normals n and extents h: a tile is kept unless, along some n, its
+        # rectangle lies beyond h (separating axis)
+        q = np.asarray(quad, np.float64)
+        centre = q.mean(axis=0)
+        axes: list[tuple[float, float, float]] = []
+        for i in range(len(q)):
+            e = q[(i + 1) % len(q)] - q[i]
+            n = np.array([e[1], -e[0]])
+            if np.dot(n, centre - q[i]) > 0:
+                n = -n  # outward
+            axes.append((float(n[0]), float(n[1]), float(np.max(q @ n)) + 1e-9))
+        keep = []
+        for tx, ty in grid:
+            # tile pixel centres span [t * ts, (t + 1) * ts - 1]; grown by the margin (per tile in plain floats:
+            # a few tiles, where numpy's per-call cost dominated)
+            rx0, ry0 = tx * ts - margin_px, ty * ts - margin_px
+            rx1, ry1 = (tx + 1) * ts - 1 + margin_px, (ty + 1) * ts - 1 + margin_px
+            if all((rx0 if nx > 0 else rx1) * nx + (ry0 if ny > 0 else ry1) * ny <= h for nx, ny, h in axes):
+                keep.append((tx, ty))
+        return keep
 
     def region(
         self,
