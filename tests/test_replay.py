@@ -325,3 +325,18 @@ def test_recorder_rows_are_on_the_sim_time_grid(tmp_path: Path) -> None:
     assert len(rows) == rec.rows_written == 120  # 0, 1/30, ... 3.967: one per grid time; the repeat ignored
     assert np.all(np.diff(t) > 0) and np.all(np.abs(t - np.ceil(np.arange(120) / 30 / dt - 1e-9) * dt) < 1e-9)
     assert rows[5].mode == "POSCTL" and rows[5].armed and abs(rows[5].pos_ned_m[0] - t[5]) < 1e-4
+
+
+def test_run_info_config_reads_back_equal_with_every_section(tmp_path: Path) -> None:
+    """run.json's config is what replay rebuilds the run from: every table (perception.sr included) reads back to
+    an equal config (a `[perception]` table written under [sim] made replay refuse every recorded run)."""
+    from viva_sitl.config import SimConfig
+    from viva_sitl.recording import config_to_dict
+
+    for cfg in (
+        SimConfig(),
+        SimConfig.from_dict({"perception": {"sr": {"method": "fsrcnn", "model_path": "/x/FSRCNN_x2.pb"}}}),
+    ):
+        table = json.loads(json.dumps(config_to_dict(cfg)))
+        assert "perception" not in table["sim"]
+        assert SimConfig.from_dict(table, "run.json") == cfg

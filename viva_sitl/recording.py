@@ -48,7 +48,7 @@ COLUMNS = (
     "sim_time_s", "north_m", "east_m", "down_m", "vn_m_s", "ve_m_s", "vd_m_s", "roll_rad", "pitch_rad", "yaw_rad",
     "mode", "armed", "landed_state", "footage_frame", "battery_pct", "battery_v",
 )  # fmt: skip
-_SECTIONS = ("physics", "camera", "mavlink", "video")
+_SECTIONS = ("physics", "camera", "mavlink", "video", "perception")
 
 
 @dataclass(frozen=True)
