@@ -17,8 +17,8 @@ blended up to MPC_Z_VEL_MAX_DN at MPC_LAND_ALT1; horizontal speed likewise down 
 is WHERE to land (away from people and risky ground; the synthetic field's risk map is fixed, so position -> risk is
 learnable from the state), not how to flare:
 
-    OMP_NUM_THREADS=1 nice -n 10 python examples/train_sb3_landing.py --minutes 22 --action-mode velocity_land \
-        --gamma 0.98 -o /work/models/sb3_landing_sac_assist
+    OMP_NUM_THREADS=1 nice -n 10 python examples/train_sb3_landing.py --minutes 14 --action-mode velocity_land \
+        --land-xy 0 --gamma 0.98 -o /work/models/sb3_landing_sac_assist_xy0
 
 The observation is the env's state vector scaled to O(1) (ScaledState: positions / 50 m, velocities / 5 m/s, angles /
 pi, altitude / 30 m): make_env() builds the exact env the bench evaluates.
@@ -173,7 +173,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--action-mode", choices=["velocity", "velocity_land"], default="velocity",
                     help="velocity_land: the env's landing assist (PX4 Land's descent/horizontal limits near the "
                     "ground), the policy learns where to land (default %(default)s)")  # fmt: skip
-    ap.add_argument("--land-xy", type=float, default=0.2, help="velocity_land: m/s below MPC_LAND_ALT2")
+    ap.add_argument(
+        "--land-xy",
+        type=float,
+        default=0.0,
+        help="velocity_land: m/s below MPC_LAND_ALT2 (0: hold, as PX4 Land)",
+    )
     args = ap.parse_args(argv)
     kw = {**ENV_KWARGS, "max_speed_m_s": args.max_speed, "max_vspeed_m_s": args.max_vspeed}
     if args.action_mode != "velocity":

@@ -393,7 +393,9 @@ def test_landing_assist_limits_sink_and_horizontal_speed_near_the_ground() -> No
     assert land_assist_limits(3.0, xy_fast_m_s=5.0, **kw) == (0.7, 0.2)
 
     def fly(mode: str) -> tuple[list[tuple[float, float, float]], dict[str, Any]]:
-        env = LandingEnv("synthetic", observation="state", action_mode=mode, max_episode_s=40.0)
+        env = LandingEnv(
+            "synthetic", observation="state", action_mode=mode, max_episode_s=40.0, land_xy_m_s=0.2
+        )
         env.reset(seed=0, options=level_start(alt_m=12.0))
         env.vehicle.params.set("MPC_LAND_SPEED", 0.9)  # read live from the vehicle's parameters
         assert env.vehicle.params.get("MPC_LAND_SPEED") == pytest.approx(0.9)
@@ -419,7 +421,8 @@ def test_landing_assist_limits_sink_and_horizontal_speed_near_the_ground() -> No
     low = [(vd, vh) for alt, vd, vh in track if 0.3 < alt < 3.0]
     assert min(vd for vd, _ in low) > 1.2 and min(vh for _, vh in low) > 3.0
     assert info["trial"]["touchdown_speed_m_s"] > 3.0
-    # climbing is never limited
+    # climbing is never limited; by default (land_xy_m_s=0) it holds position below MPC_LAND_ALT2, as PX4's Land
     env = LandingEnv("synthetic", observation="state", action_mode="velocity_land")
     env.reset(seed=0, options=level_start(alt_m=2.0))
     assert env.assisted_velocity((0.0, 0.0, -3.0)) == (0.0, 0.0, -3.0)
+    assert env.assisted_velocity((3.0, 4.0, 2.0)) == (0.0, 0.0, pytest.approx(0.7))

@@ -115,7 +115,7 @@ class LandingEnv(gym.Env[Any, NDArray[np.float32]]):
         max_yaw_rate_deg_s: float = 30.0,
         max_speed_m_s: float = 5.0,
         max_vspeed_m_s: float = 3.0,
-        land_xy_m_s: float = 0.2,
+        land_xy_m_s: float = 0.0,
         out_of_range: str = "clip",
         render_mode: str | None = None,
         overview_px: int = 800,
