@@ -158,9 +158,14 @@ def markdown(results: dict[str, Any]) -> str:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--spec", default=str(example.SPEC))
-    ap.add_argument("--model", type=Path, help="a saved SB3 SAC policy (.zip)")
+    ap.add_argument(
+        "--model", type=Path, help="a saved SB3 SAC policy (.zip); the random pilot flies its env too"
+    )
     ap.add_argument("--pilots", nargs="+", default=["sac", "random", "descend"])
     ap.add_argument("--name", default="sac", help="the row name of the sac pilot (default %(default)s)")
+    ap.add_argument(
+        "--random-name", default="random", help="the row name of the random pilot (default %(default)s)"
+    )
     ap.add_argument("--cap", type=float, nargs=2, metavar=("BELOW_M", "M_S"),
                     help="sac pilot: cap the commanded descent to M_S below BELOW_M above ground (a fixed rule)")  # fmt: skip
     ap.add_argument("--n", type=int, default=30)
@@ -190,7 +195,14 @@ def main(argv: list[str] | None = None) -> int:
             print(f"{args.name}: {args.n} trials in {walls[args.name]} s", flush=True)
             continue
         elif pilot == "random":
-            rows["random"] = evaluate_gym(random_policy(seed), args.spec, args.n, seed, scenarios)
+            # in the trained policy's env (its action mode and scaling) when a model is given
+            kw_r = model_env_kwargs(args.model) if args.model is not None else None
+            rows[args.random_name] = evaluate_gym(
+                random_policy(seed), args.spec, args.n, seed, scenarios, env_kwargs=kw_r
+            )
+            walls[args.random_name] = round(time.perf_counter() - t0, 1)
+            print(f"{args.random_name}: {args.n} trials in {walls[args.random_name]} s", flush=True)
+            continue
         else:
             rows[pilot] = evaluate_trials(pilot, spec, scenarios)
         walls[pilot] = round(time.perf_counter() - t0, 1)

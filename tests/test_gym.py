@@ -30,6 +30,7 @@ from viva_sitl.gym import (  # noqa: E402
     Scenario,
     StepScore,
     TrialSpec,
+    land_assist_limits,
 )
 
 REPO = Path(__file__).resolve().parents[1]
@@ -382,3 +383,46 @@ def test_leaving_the_footage_ends_the_episode(shared_dir: Path) -> None:
     assert term and info["trial"]["end"] == "left_footage" and r < -50.0
     assert not g.contains_ned(float(obs["state"][0]), float(obs["state"][1]))
     env.close()
+
+
+def test_landing_assist_limits_sink_and_horizontal_speed_near_the_ground() -> None:
+    # the rule: PX4 Land's blend between MPC_LAND_ALT2 (land values) and MPC_LAND_ALT1 (fast values)
+    kw = {"land_speed_m_s": 0.7, "fast_down_m_s": 1.5, "alt1_m": 10.0, "alt2_m": 5.0, "xy_land_m_s": 0.2}
+    assert land_assist_limits(12.0, xy_fast_m_s=5.0, **kw) == (math.inf, math.inf)
+    assert land_assist_limits(7.5, xy_fast_m_s=5.0, **kw) == pytest.approx((1.1, 2.6))
+    assert land_assist_limits(3.0, xy_fast_m_s=5.0, **kw) == (0.7, 0.2)
+
+    def fly(mode: str) -> tuple[list[tuple[float, float, float]], dict[str, Any]]:
+        env = LandingEnv(
+            "synthetic", observation="state", action_mode=mode, max_episode_s=40.0, land_xy_m_s=0.2
+        )
+        env.reset(seed=0, options=level_start(alt_m=12.0))
+        env.vehicle.params.set("MPC_LAND_SPEED", 0.9)  # read live from the vehicle's parameters
+        assert env.vehicle.params.get("MPC_LAND_SPEED") == pytest.approx(0.9)
+        track = []
+        for _ in range(1200):  # full sink and full speed north, all the way down
+            obs, _, term, trunc, info = env.step(np.array([1.0, 0.0, 1.0, 0.0], np.float32))
+            track.append((float(obs[9]), float(obs[5]), math.hypot(float(obs[3]), float(obs[4]))))
+            if term or trunc:
+                return track, info
+        raise AssertionError("did not land")
+
+    track, info = fly("velocity_land")
+    low = [(vd, vh) for alt, vd, vh in track if 0.3 < alt < 3.0]
+    assert low and max(vd for vd, _ in low) < 0.9 + 0.08 and max(vh for _, vh in low) < 0.2 + 0.08
+    assert min(vd for vd, _ in low) > 0.9 - 0.08  # it does sink at MPC_LAND_SPEED
+    # above MPC_LAND_ALT1 only the autopilot's own limit (MPC_Z_VEL_MAX_DN)
+    assert max(vd for alt, vd, _ in track if alt > 10.5) > 1.3
+    row = info["trial"]
+    assert row["end"] == "landed" and row["touchdown_speed_m_s"] < 1.0
+    # the default velocity mode is unchanged: the same command sinks at MPC_Z_VEL_MAX_DN and flies at 5 m/s to the
+    # ground, touching down far faster
+    track, info = fly("velocity")
+    low = [(vd, vh) for alt, vd, vh in track if 0.3 < alt < 3.0]
+    assert min(vd for vd, _ in low) > 1.2 and min(vh for _, vh in low) > 3.0
+    assert info["trial"]["touchdown_speed_m_s"] > 3.0
+    # climbing is never limited; by default (land_xy_m_s=0) it holds position below MPC_LAND_ALT2, as PX4's Land
+    env = LandingEnv("synthetic", observation="state", action_mode="velocity_land")
+    env.reset(seed=0, options=level_start(alt_m=2.0))
+    assert env.assisted_velocity((0.0, 0.0, -3.0)) == (0.0, 0.0, -3.0)
+    assert env.assisted_velocity((3.0, 4.0, 2.0)) == (0.0, 0.0, pytest.approx(0.7))

@@ -15,6 +15,12 @@ Actions (`action_mode`):
 - "velocity": [v_north, v_east, v_down, yaw-rate] in [-1, 1] x (max_speed_m_s, max_speed_m_s, max_vspeed_m_s,
   max_yaw_rate_deg_s): an offboard velocity setpoint to the autopilot (OFFBOARD mode, as MAVSDK's
   set_velocity_ned), flown with Vehicle.step.
+- "velocity_land": "velocity" with a landing assist (the autopilot's land phase, for policies that should learn WHERE
+  to land and leave the touchdown to the autopilot): at every physics step, below MPC_LAND_ALT1 above ground the
+  commanded descent is limited as PX4's Land limits it (MPC_LAND_SPEED below MPC_LAND_ALT2, blended linearly up to
+  MPC_Z_VEL_MAX_DN at MPC_LAND_ALT1; the vehicle's parameters, so a scenario's drawn MPC_LAND_SPEED counts) and the
+  horizontal speed likewise (`land_xy_m_s` below MPC_LAND_ALT2, blended up to max_speed_m_s at MPC_LAND_ALT1;
+  a command over it is scaled down, direction kept). Climbing is never limited. land_assist_limits() is the rule.
 Each env step is one control period (1/control_hz s) of physics: n = 8 or 9 steps of 250 Hz physics at 30 Hz, the
 same schedule as viva-safeland-comparison benches (round((k+1) rate/hz) - round(k rate/hz)).
 
@@ -77,7 +83,7 @@ from viva_sitl.gym.scoring import LandingReward, RewardConfig, Scorer
 from viva_sitl.vehicle import Vehicle
 from viva_sitl.world import WorldModel, world_from_source
 
-ACTION_MODES = ("attitude", "velocity")
+ACTION_MODES = ("attitude", "velocity", "velocity_land")
 OBSERVATIONS = ("image+state", "state")
 STATE_FIELDS = ("north_m", "east_m", "down_m", "v_north_m_s", "v_east_m_s", "v_down_m_s",
                 "roll_rad", "pitch_rad", "yaw_rad", "alt_agl_m")  # fmt: skip
@@ -109,6 +115,7 @@ class LandingEnv(gym.Env[Any, NDArray[np.float32]]):
         max_yaw_rate_deg_s: float = 30.0,
         max_speed_m_s: float = 5.0,
         max_vspeed_m_s: float = 3.0,
+        land_xy_m_s: float = 0.0,
         out_of_range: str = "clip",
         render_mode: str | None = None,
         overview_px: int = 800,
@@ -130,6 +137,8 @@ class LandingEnv(gym.Env[Any, NDArray[np.float32]]):
             max_episode_s is None or max_episode_s > 0.0
         ):
             raise ValueError("control_hz and max_episode_s must be positive")
+        if not (land_xy_m_s >= 0.0 and math.isfinite(land_xy_m_s)):
+            raise ValueError(f"land_xy_m_s must be a finite speed >= 0, got {land_xy_m_s!r}")
         trial_spec = resolve_spec(spec) if spec is not None else None
         if footage is None:
             footage = trial_spec.footage[0] if trial_spec is not None else "synthetic"
@@ -148,6 +157,7 @@ class LandingEnv(gym.Env[Any, NDArray[np.float32]]):
         self.max_tilt_rad = math.radians(max_tilt_deg)
         self.max_yaw_rate_rad_s = math.radians(max_yaw_rate_deg_s)
         self.max_speed_m_s, self.max_vspeed_m_s = float(max_speed_m_s), float(max_vspeed_m_s)
+        self.land_xy_m_s = float(land_xy_m_s)
         self.metadata = {**self.metadata, "render_fps": self.control_hz}
 
         base = config or SimConfig()
@@ -199,6 +209,22 @@ class LandingEnv(gym.Env[Any, NDArray[np.float32]]):
     @property
     def footage_time_s(self) -> float:
         return self.vehicle.time_s + self.vehicle.sim.footage_offset_s
+
+    def assisted_velocity(self, vel_ned_m_s: tuple[float, float, float]) -> tuple[float, float, float]:
+        """A commanded NED velocity limited by the landing assist at the vehicle's current altitude above ground
+        ("velocity_land" mode; land_assist_limits over the vehicle's MPC_LAND_* / MPC_Z_VEL_MAX_DN)."""
+        p, s = self.vehicle.params, self.vehicle.state
+        alt = self.vehicle.sim.params.ground_z_ned_m - float(s.pos_ned_m[2])
+        max_down, max_xy = land_assist_limits(
+            alt, land_speed_m_s=p.get("MPC_LAND_SPEED"), fast_down_m_s=p.get("MPC_Z_VEL_MAX_DN"),
+            alt1_m=p.get("MPC_LAND_ALT1"), alt2_m=p.get("MPC_LAND_ALT2"),
+            xy_land_m_s=self.land_xy_m_s, xy_fast_m_s=self.max_speed_m_s,
+        )  # fmt: skip
+        vn, ve, vd = vel_ned_m_s
+        h = math.hypot(vn, ve)
+        if h > max_xy:
+            vn, ve = vn * max_xy / h, ve * max_xy / h
+        return (vn, ve, min(vd, max_down))
 
     def _physics_steps(self, k: int) -> int:
         """Physics steps in control step k (of a global schedule, so k reference steps = round(k rate / hz))."""
@@ -300,7 +326,7 @@ class LandingEnv(gym.Env[Any, NDArray[np.float32]]):
         self.monitor = TrialMonitor(sc, self.limits, gcs=True)
         self.monitor.start(veh)
         self._yaw_cmd_rad = yaw_rad
-        if self.action_mode == "velocity":
+        if self.action_mode != "attitude":
             ap = veh.autopilot
             hold = PositionTarget(vel_ned_m_s=(0.0, 0.0, 0.0), yaw_rate_rad_s=0.0)
             for out in (
@@ -358,15 +384,21 @@ class LandingEnv(gym.Env[Any, NDArray[np.float32]]):
                 if mon.log.end is not None:
                     break
         else:
-            target = PositionTarget(
-                vel_ned_m_s=(float(a[0]) * self.max_speed_m_s, float(a[1]) * self.max_speed_m_s,
-                             float(a[2]) * self.max_vspeed_m_s),
-                yaw_rate_rad_s=float(a[3]) * self.max_yaw_rate_rad_s,
-            )  # fmt: skip
-            out = veh.autopilot.set_position_target(veh.time_s, target)
-            if not out.ok:
-                raise ValueError(f"velocity setpoint refused: {out.reason}")
-            for _ in range(n):
+            vel = (
+                float(a[0]) * self.max_speed_m_s,
+                float(a[1]) * self.max_speed_m_s,
+                float(a[2]) * self.max_vspeed_m_s,
+            )
+            yaw_rate = float(a[3]) * self.max_yaw_rate_rad_s
+            assist = self.action_mode == "velocity_land"
+            for i in range(n):
+                if i == 0 or assist:
+                    v = self.assisted_velocity(vel) if assist else vel
+                    out = veh.autopilot.set_position_target(
+                        veh.time_s, PositionTarget(vel_ned_m_s=v, yaw_rate_rad_s=yaw_rate)
+                    )
+                    if not out.ok:
+                        raise ValueError(f"velocity setpoint refused: {out.reason}")
                 monitored_step(veh, mon, None)
                 if mon.log.end is not None:
                     break
@@ -414,6 +446,28 @@ class LandingEnv(gym.Env[Any, NDArray[np.float32]]):
             self.vehicle.close()
 
 
+def land_assist_limits(
+    alt_agl_m: float,
+    *,
+    land_speed_m_s: float,
+    fast_down_m_s: float,
+    alt1_m: float,
+    alt2_m: float,
+    xy_land_m_s: float,
+    xy_fast_m_s: float,
+) -> tuple[float, float]:
+    """(max descent, max horizontal speed) in m/s at `alt_agl_m` above ground, PX4 Land's altitude blend (as
+    viva_sitl.autopilot.tasks.land): at or below alt2_m the land values, at or above alt1_m no limit (inf, inf; the
+    autopilot's own limits apply), linear in between from the land values to the fast ones."""
+    if alt_agl_m >= alt1_m and alt1_m > alt2_m:
+        return math.inf, math.inf
+    if alt_agl_m <= alt2_m or alt1_m <= alt2_m:
+        return land_speed_m_s, xy_land_m_s
+    f = (alt_agl_m - alt2_m) / (alt1_m - alt2_m)
+    down = land_speed_m_s + (max(fast_down_m_s, land_speed_m_s) - land_speed_m_s) * f
+    return down, xy_land_m_s + (max(xy_fast_m_s, xy_land_m_s) - xy_land_m_s) * f
+
+
 def overview_rgb(env: LandingEnv, max_px: int) -> NDArray[np.uint8]:
     """The footage frame at the env's footage time (risk + objects, viva_sitl.world.overlay), the vehicle and its
     camera footprint drawn on it; RGB."""
@@ -439,4 +493,4 @@ def overview_rgb(env: LandingEnv, max_px: int) -> NDArray[np.uint8]:
     return np.ascontiguousarray(img[:, :, ::-1])
 
 
-__all__ = ["ACTION_MODES", "OBSERVATIONS", "STATE_FIELDS", "LandingEnv", "overview_rgb"]
+__all__ = ["ACTION_MODES", "OBSERVATIONS", "STATE_FIELDS", "LandingEnv", "land_assist_limits", "overview_rgb"]
