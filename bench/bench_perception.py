@@ -327,6 +327,13 @@ def _load() -> str:
     return "/".join(f"{v:.1f}" for v in os.getloadavg())
 
 
+def _synthetic_dataset_of(spec: dict[str, object], data: Path) -> Path:
+    """`_synthetic_dataset` with the export settings of one bench part (SEG_SYNTH_SPEC / DET_SYNTH_SPEC)."""
+    return _synthetic_dataset(
+        data, int(str(spec["n"])), int(str(spec["seed"])), float(str(spec["val"])), str(spec["poses"])
+    )
+
+
 def bench_seg_synth(args: argparse.Namespace) -> str:
     """The risk U-Net on the synthetic field (exact risk ground truth): train with the recipe unless --weights
     already exists, then held-out (east of the cut) mIoU and per-level IoU vs the majority level, ms per frame."""
@@ -336,14 +343,7 @@ def bench_seg_synth(args: argparse.Namespace) -> str:
 
     torch.set_num_threads(args.threads)
     load0 = _load()
-    spec = SEG_SYNTH_SPEC
-    data = _synthetic_dataset(
-        Path(args.data),
-        int(spec["n"]),
-        int(spec["seed"]),
-        float(spec["val"]),
-        str(spec["poses"]),
-    )
+    data = _synthetic_dataset_of(SEG_SYNTH_SPEC, Path(args.data))
     weights = Path(args.weights) if args.weights else None
     trained = ""
     if weights is None or not weights.is_file():
@@ -416,14 +416,7 @@ def bench_det_synth(args: argparse.Namespace) -> str:
 
     torch.set_num_threads(args.threads)
     load0 = _load()
-    spec = DET_SYNTH_SPEC
-    data = _synthetic_dataset(
-        Path(args.data),
-        int(spec["n"]),
-        int(spec["seed"]),
-        float(spec["val"]),
-        str(spec["poses"]),
-    )
+    data = _synthetic_dataset_of(DET_SYNTH_SPEC, Path(args.data))
     weights = Path(args.weights) if args.weights else None
     trained = ""
     if weights is None or not weights.is_file():
