@@ -55,6 +55,8 @@ from numpy.typing import NDArray
 
 SETPOINT_PERIOD_S = 0.05  # 20 Hz, MAVSDK's own re-send rate; PX4 needs > 2 Hz
 LAND_NOW_TEXT = "land now"  # the trials' STATUSTEXT is "Emergency: land now"
+MAX_REENGAGE = 2  # times OFFBOARD is taken back after the vehicle's offboard-loss failsafe
+STALL_S = 0.25  # a 20 Hz re-send gap this long (wall s): this process was starved (COM_OF_LOSS_T 1 s / speed)
 PERSON_NAMES = {
     "person",
     "bicycle",
@@ -229,6 +231,12 @@ def load_models(args: argparse.Namespace) -> tuple[Any | None, Any | None]:
 # ---------------------------------------------------------------------------------------------------- flight
 
 
+def offboard_loss_text(text: str) -> bool:
+    """PX4's (and viva-sitl's) failsafe STATUSTEXT for a setpoint stream that stopped."""
+    t = text.lower()
+    return "offboard" in t and ("lost" in t or "loss" in t or "no offboard" in t)
+
+
 class Tracker:
     """The latest telemetry, kept fresh by background subscriptions; also the "land now" STATUSTEXT."""
 
@@ -236,6 +244,7 @@ class Tracker:
         self._telemetry = telemetry
         self.values: dict[str, Any] = {}
         self.land_now = False
+        self.texts: list[str] = []  # the vehicle's STATUSTEXTs since the last take_texts()
         self.last_update = time.monotonic()
         self.link_timeout_s = link_timeout_s
         self._changed = asyncio.Event()
@@ -247,6 +256,8 @@ class Tracker:
                 if name == "text":
                     if LAND_NOW_TEXT in value.text.lower():
                         self.land_now = True
+                    else:
+                        self.texts = [*self.texts[-7:], value.text]
                 else:
                     self.values[name] = value
                     self.last_update = time.monotonic()
@@ -269,6 +280,10 @@ class Tracker:
         for task in self._tasks:
             task.cancel()
         await asyncio.gather(*self._tasks, return_exceptions=True)
+
+    def take_texts(self) -> list[str]:
+        texts, self.texts = self.texts, []
+        return texts
 
     def check_link(self) -> None:
         quiet = time.monotonic() - self.last_update
@@ -344,13 +359,27 @@ class Setpoint:
         self.yaw_deg = yaw_deg
         self.target: tuple[float, float, float] | None = None
         self._task: asyncio.Task[None] | None = None
+        self.stall_s = (
+            0.0  # the last gap between two re-sends longer than STALL_S (this process was starved) ...
+        )
+        self.stall_end = -math.inf  # ... and when it ended (monotonic s)
 
     async def set(self, north_m: float, east_m: float, down_m: float) -> None:
         self.target = (north_m, east_m, down_m)
         await self.offboard.set_position_ned(self._cls(north_m, east_m, down_m, self.yaw_deg))
 
+    def stalled(self, within_s: float = 5.0) -> float:
+        """The stall that ended in the last `within_s` (0.0: none): a freeze of the whole process, MAVSDK's own
+        20 Hz re-send thread included, that the vehicle sees as a lost setpoint stream."""
+        return self.stall_s if time.monotonic() - self.stall_end < within_s else 0.0
+
     async def _run(self) -> None:
+        prev = time.monotonic()
         while True:
+            now = time.monotonic()
+            if now - prev > STALL_S:
+                self.stall_s, self.stall_end = now - prev, now
+            prev = now
             if self.target is not None:
                 with contextlib.suppress(Exception):  # a refused re-send is seen by the mode check
                     await self.offboard.set_position_ned(self._cls(*self.target, self.yaw_deg))
@@ -410,7 +439,6 @@ class Companion:
         log(f"'land now' received (mode {mode_name()})")
 
     async def land(self, tr: Tracker, cam: Camera, action: Any, offboard: Any) -> dict[str, Any]:
-        from mavsdk.asyncio.plugins.offboard import OffboardError
         from mavsdk.asyncio.plugins.telemetry import FlightMode
 
         args, cfg = self.args, self.cfg
@@ -418,21 +446,9 @@ class Companion:
         n0, e0, d0 = tr.ned
         await sp.set(n0, e0, d0)  # hold here first: PX4 wants a setpoint stream (> 2 Hz) before OFFBOARD
         sp.start()
-        for attempt in range(1, 6):
-            # a few setpoints out first (wall time: on a loaded machine the stream needs it)
-            await asyncio.sleep(0.5)
-            try:
-                await offboard.start()
-                break
-            except OffboardError as exc:
-                if attempt == 5:
-                    await sp.stop()
-                    raise MissionFailed(f"offboard refused: {exc}") from exc
-                log(f"offboard start: {exc}; retrying")
+        reengaged = 0
         try:
-            await tr.wait_until(
-                lambda: tr.values["mode"] == FlightMode.OFFBOARD, args.step_timeout, "OFFBOARD"
-            )
+            await self._engage(tr, offboard)
             log(f"offboard: holding at ({n0:.1f}, {e0:.1f}) m, {-d0:.1f} m up; looking")
             look_down = d0
             t_sim = cam.last_sim_time_s
@@ -442,7 +458,23 @@ class Companion:
             strikes = 0
             while True:
                 if tr.values["mode"] != FlightMode.OFFBOARD:
-                    raise MissionFailed(f"left OFFBOARD (now {tr.values['mode'].name}) while landing")
+                    # the failsafe's STATUSTEXT comes with the mode change but through another stream: wait a moment
+                    with contextlib.suppress(MissionFailed):
+                        await tr.wait_until(lambda: any(map(offboard_loss_text, tr.texts)), 2.0, "the reason")
+                    texts = tr.take_texts()
+                    why = next((t for t in reversed(texts) if offboard_loss_text(t)), None)
+                    stall_s = sp.stalled()
+                    if why is None and stall_s > STALL_S:  # frozen: the failsafe's text was likely lost too
+                        why = f"this process stalled {stall_s:.1f} s, longer than a setpoint stream may pause"
+                    if why is not None and reengaged < MAX_REENGAGE:
+                        # PX4's offboard-loss failsafe: our setpoints stopped reaching it for COM_OF_LOSS_T (a
+                        # starved machine); nobody else asked for the mode change, so take control back
+                        reengaged += 1
+                        log(f"left OFFBOARD ({why}); re-engaging OFFBOARD ({reengaged}/{MAX_REENGAGE})")
+                        await self._engage(tr, offboard)
+                        continue
+                    said = f"; vehicle said {texts[-3:]}" if texts else ""
+                    raise MissionFailed(f"left OFFBOARD (now {tr.values['mode'].name}) while landing{said}")
                 n, e, d = tr.ned
                 horiz = math.hypot(n - spot.north_m, e - spot.east_m)
                 if cruise and horiz < args.arrive_radius and math.hypot(*tr.vel[:2]) < 0.5:
@@ -501,6 +533,27 @@ class Companion:
             "spot_north_m": round(spot.north_m, 2), "spot_east_m": round(spot.east_m, 2),
             "spot_level": spot.level, "replans": self.replans, "looks": self.looks,
         }  # fmt: skip
+
+    async def _engage(self, tr: Tracker, offboard: Any) -> None:
+        """OFFBOARD with the setpoint stream already flowing; a refused or unacknowledged start is retried."""
+        from mavsdk.asyncio.plugins.offboard import OffboardError
+        from mavsdk.asyncio.plugins.telemetry import FlightMode
+
+        for attempt in range(1, 6):
+            # a few setpoints out first (wall time: on a loaded machine the stream needs it)
+            await asyncio.sleep(0.5)
+            try:
+                await offboard.start()
+                break
+            except OffboardError as exc:
+                if tr.values["mode"] == FlightMode.OFFBOARD:  # it switched; only the ACK was lost
+                    break
+                if attempt == 5:
+                    raise MissionFailed(f"offboard refused: {exc}") from exc
+                log(f"offboard start: {exc}; retrying")
+        await tr.wait_until(
+            lambda: tr.values["mode"] == FlightMode.OFFBOARD, self.args.step_timeout, "OFFBOARD"
+        )
 
     async def _command_land(self, tr: Tracker, action: Any) -> None:
         """AUTO.LAND; a lost COMMAND_ACK (a loaded link) is retried, and a mode already LAND counts as done."""

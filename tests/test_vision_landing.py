@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from sitl_process import free_udp_ports
+from sitl_process import MavlinkPeer, free_udp_ports
 
 from viva_sitl.evaluation.report import read_results
 from viva_sitl.world import load_world
@@ -180,6 +180,59 @@ def test_lost_vehicle_is_a_clean_exit(tmp_path: Path, token_segmenter: Path, sit
     sitl.stop()
     _, err = p.communicate(timeout=60)
     assert p.returncode == 1 and "FAILED: lost the vehicle: no telemetry for" in err, err
+
+
+def test_stalled_pilot_takes_offboard_back_after_the_failsafe(
+    tmp_path: Path, token_segmenter: Path, sitl_factory: Any
+) -> None:
+    """A starved companion: the pilot process is frozen (SIGSTOP, MAVSDK's own re-send thread included) for longer
+    than COM_OF_LOSS_T while in OFFBOARD. The vehicle fails safe to Hold and says why; the thawed pilot reads that
+    STATUSTEXT, takes OFFBOARD back and still lands (what CI's loaded machine once hit at --speed 2)."""
+    from viva_sitl.evaluation.monitor import Limits
+    from viva_sitl.evaluation.session import write_scenario_file
+    from viva_sitl.evaluation.spec import draw_scenarios, spec_from_dict
+
+    spec = spec_from_dict(
+        {"trials": {"name": "stall", "n": 1, "timeout_s": 300.0},
+         "scenario": {"footage": "synthetic", "start": "air", "north_m": 20.0, "east_m": 20.0, "altitude_m": 12.0,
+                      "land_at_s": 1.0}},
+        "stall",
+    )  # fmt: skip
+    scen = tmp_path / "scenario.json"
+    write_scenario_file(scen, draw_scenarios(spec)[0], Limits(timeout_s=300.0))
+    sitl = sitl_factory(video_port=free_udp_ports(1)[0], extra_args=("--scenario", str(scen)))
+    gcs = MavlinkPeer(sitl.ports.gcs)  # the ground station sees the failsafe's STATUSTEXT
+    p = subprocess.Popen(
+        [sys.executable, str(SCRIPT), sitl.ports.mavsdk_url, "--frames", f"tcp://127.0.0.1:{sitl.frame_socket_port}",
+         "--scenario", str(scen), "--segmenter", str(token_segmenter)],
+        cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    try:
+        assert p.stdout is not None
+        lines: list[str] = []
+        for line in p.stdout:
+            lines.append(line)
+            if "offboard: holding" in line:
+                break
+        assert lines and "offboard: holding" in lines[-1], "".join(lines)
+        p.send_signal(signal.SIGSTOP)
+        said = gcs.wait("STATUSTEXT", lambda m: "offboard" in m.text, 30.0, what="the offboard-loss failsafe")
+        gcs.wait("HEARTBEAT", lambda m: m.get_srcComponent() == 1, 5.0, since_s=time.monotonic() + 0.5)
+        p.send_signal(signal.SIGCONT)  # frozen ~1 s in all (the vehicle's failsafe after 1 s / speed 3)
+        out, err = p.communicate(timeout=240)
+    finally:
+        gcs.close()
+        if p.poll() is None:
+            p.send_signal(signal.SIGCONT)
+            p.kill()
+            p.wait()
+    text = "".join(lines) + out
+    assert "Failsafe activated (no offboard)" in said.text, said.text  # its first 50-char chunk
+    # why it took OFFBOARD back: the failsafe's text, or (when the frozen socket dropped that) its own stall
+    assert re.search(
+        r"left OFFBOARD \((.*no offboard.*|this process stalled .*)\); re-engaging OFFBOARD \(1/2\)", text
+    ), text + err
+    assert p.returncode == 0 and "landed and disarmed" in text, text + err
 
 
 def test_ctrl_c_is_a_clean_exit(token_segmenter: Path) -> None:
