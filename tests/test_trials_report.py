@@ -1,0 +1,233 @@
+"""The trials reports a benchmark user reads (issue 8 §3): report.html of `trials run` and the output of `trials
+compare` show the object-distance scores (schema v2) with the values of results.json, "unavailable" (never 0) when
+the footage has no ground truth; `trials report` rewrites report.html; bad paths and pilots are one-line errors.
+Real runs of the CLI over the synthetic field with the in-process `descend` / `oracle` pilots."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from html.parser import HTMLParser
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+SPEC = REPO / "configs" / "trials" / "synthetic_emergency.toml"
+OBJ = ("dist_object_m", "min_dist_object_m")
+
+
+class Tables(HTMLParser):
+    """Every <table id=...> as rows of (tr attributes, [(cell attributes, text)])."""
+
+    def __init__(self, text: str) -> None:
+        super().__init__()
+        self.tables: dict[
+            str, list[tuple[dict[str, str | None], list[tuple[dict[str, str | None], str]]]]
+        ] = {}
+        self._t: str | None = None
+        self._cell: list[str] | None = None
+        self.feed(text)
+
+    def handle_starttag(self, tag: str, attrs: list[tuple[str, str | None]]) -> None:
+        a = dict(attrs)
+        if tag == "table":
+            self._t = a.get("id") or f"table{len(self.tables)}"
+            self.tables[self._t] = []
+        elif tag == "tr" and self._t is not None:
+            self.tables[self._t].append((a, []))
+        elif tag in ("td", "th") and self._t is not None:
+            self._cell = []
+            self.tables[self._t][-1][1].append((a, ""))
+
+    def handle_data(self, data: str) -> None:
+        if self._cell is not None:
+            self._cell.append(data)
+
+    def handle_endtag(self, tag: str) -> None:
+        if tag in ("td", "th") and self._cell is not None and self._t is not None:
+            attrs, _ = self.tables[self._t][-1][1][-1]
+            self.tables[self._t][-1][1][-1] = (attrs, "".join(self._cell).strip())
+            self._cell = None
+        elif tag == "table":
+            self._t = None
+
+    def records(self, table: str) -> list[dict[str, str]]:
+        """A table whose header cells carry data-col, as one dict per body row."""
+        head, *body = self.tables[table]
+        cols = [str(a.get("data-col")) for a, _ in head[1]]
+        return [dict(zip(cols, [t for _, t in cells], strict=True)) for _, cells in body]
+
+    def scores(self, table: str = "scores") -> dict[str, list[str]]:
+        return {
+            str(tr["data-score"]): [t for _, t in cells]
+            for tr, cells in self.tables[table]
+            if "data-score" in tr
+        }
+
+
+def _cli(*args: str, timeout: float = 300) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, "-m", "viva_sitl", *args], cwd=REPO, capture_output=True, text=True,
+                          timeout=timeout)  # fmt: skip
+
+
+def _run(spec: Path, pilot: str, out: Path, n: int = 2) -> dict:  # type: ignore[type-arg]
+    r = _cli("trials", "run", str(spec), "--pilot", pilot, "--n", str(n), "--jobs", "1", "-o", str(out),
+             "--no-progress")  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    doc: dict = json.loads((out / "results.json").read_text())  # type: ignore[type-arg]
+    return doc
+
+
+def _value(cell: str) -> object:
+    """A per-trial cell back to the results.json value it shows."""
+    return {"yes": True, "no": False, "unavailable": None, "—": None}.get(cell, cell)
+
+
+def _same(cell: str, v: object) -> bool:
+    if isinstance(v, bool) or v is None:
+        return _value(cell) == v and (v is not None or cell in ("unavailable", "—"))
+    if isinstance(v, int | float):
+        return float(cell) == v  # exact: the cell is the JSON number
+    return cell == str(v)
+
+
+def test_report_and_compare_show_object_distances_as_in_results_json(tmp_path: Path) -> None:
+    a_dir, b_dir = tmp_path / "descend", tmp_path / "oracle"
+    a, b = _run(SPEC, "descend", a_dir), _run(SPEC, "oracle", b_dir)
+    for doc, out in ((a, a_dir), (b, b_dir)):
+        page = Tables((out / "report.html").read_text())
+        trials = page.records("trials")
+        assert [int(t["trial"]) for t in trials] == [r["trial"] for r in doc["rows"]] == [0, 1]
+        for t, row in zip(trials, doc["rows"], strict=True):
+            assert row["gt_objects"] is True and row["objects_present"] is True
+            assert all(row[c] is not None for c in OBJ)  # the synthetic field has people and cars
+            for col, cell in t.items():
+                assert _same(cell, row[col]), (col, cell, row[col])
+            # any object: never farther than the nearest person or vehicle
+            assert row["min_dist_object_m"] <= min(row["min_dist_person_m"], row["min_dist_vehicle_m"]) + 1e-9
+        sc = page.scores()
+        for key in (*OBJ, "min_dist_person_m", "min_dist_vehicle_m"):
+            st = doc["aggregate"]["scores"][key]
+            cells = sc[key]
+            assert int(cells[1]) == st["n"] == 2
+            assert float(cells[2]) == pytest.approx(st["mean"], rel=5e-3)  # 3 significant digits
+            assert float(cells[7]) == pytest.approx(min(r[key] for r in doc["rows"]), rel=5e-3)
+            assert float(cells[8]) == pytest.approx(max(r[key] for r in doc["rows"]), rel=5e-3)
+        worst_head = [t for _, t in page.tables["worst"][0][1]]
+        assert "min dist object (m)" in worst_head
+
+    # trials compare: text, JSON and HTML carry the paired object distances (B - A) of the same scenarios
+    cmp_json, cmp_html = tmp_path / "cmp.json", tmp_path / "cmp.html"
+    r = _cli("trials", "compare", str(a_dir), str(b_dir), "-o", str(cmp_json), "--html", str(cmp_html))
+    assert r.returncode == 0, r.stderr
+    res = json.loads(cmp_json.read_text())
+    assert res["same_scenarios"] is True and res["pairs"] == 2
+    ra, rb = {x["trial"]: x for x in a["rows"]}, {x["trial"]: x for x in b["rows"]}
+    for key in OBJ:
+        diffs = [rb[k][key] - ra[k][key] for k in (0, 1)]
+        d = res["scores"][key]
+        assert d["pairs"] == 2 and d["mean_diff_b_minus_a"] == pytest.approx(sum(diffs) / 2, abs=1e-4)
+        line = next(ln for ln in r.stdout.splitlines() if ln.strip().startswith(key + " "))
+        assert f"B-A {d['mean_diff_b_minus_a']:>9}" in line and "2 pairs" in line
+    page = Tables(cmp_html.read_text())
+    pairs = page.records("pairs")
+    assert [int(p["trial"]) for p in pairs] == [0, 1]
+    for p, e in zip(pairs, res["per_trial"], strict=True):
+        k = e["trial"]
+        for key in OBJ:
+            va, vb, dv = (float(x) for x in p[key].split(" / "))
+            assert (va, vb) == (ra[k][key], rb[k][key]) and (e[key + "_a"], e[key + "_b"]) == (va, vb)
+            assert dv == e[key + "_diff"] == pytest.approx(vb - va, abs=1e-4)
+        assert p["success"] == " / ".join("yes" if s else "no" for s in (ra[k]["success"], rb[k]["success"]))
+    sc = page.scores()
+    for key in OBJ:
+        assert float(sc[key][4]) == pytest.approx(
+            res["scores"][key]["mean_diff_b_minus_a"], rel=5e-3, abs=1e-3
+        )
+
+    # `trials report` writes the same page again from results.json (e.g. after report.html was lost)
+    before = (a_dir / "report.html").read_text()
+    (a_dir / "report.html").unlink()
+    r = _cli("trials", "report", str(a_dir), timeout=120)
+    assert r.returncode == 0, r.stderr
+    assert (a_dir / "report.html").read_text() == before
+    # a results.json file works where OUT_DIR is expected
+    r = _cli("trials", "compare", str(a_dir / "results.json"), str(b_dir), timeout=120)
+    assert r.returncode == 0 and "2 paired trials, same scenarios: True" in r.stdout, r.stderr
+    # an output that cannot be written: one line, no traceback
+    r = _cli(
+        "trials",
+        "compare",
+        str(a_dir),
+        str(b_dir),
+        "-o",
+        str(tmp_path / "no" / "such" / "c.json"),
+        timeout=120,
+    )
+    assert r.returncode == 2 and r.stderr.strip().splitlines() == [
+        f"viva-sitl trials: No such file or directory: {tmp_path / 'no' / 'such' / 'c.json'}"
+    ], r.stderr
+
+
+@pytest.fixture
+def nogt_spec(tmp_path: Path) -> Path:
+    """A spec over a generated video with a scale but no object tracks and no risk map."""
+    from viva_sitl.footage.testclip import write_coded_clip
+
+    clip = write_coded_clip(tmp_path / "nogt.mp4", 60, 640, 480)
+    (tmp_path / "nogt.toml").write_text('name = "nogt"\nkind = "video"\npath = "nogt.mp4"\nfps = 30.0\n'
+                                        "recording_altitude_m = 100.0\nhfov_deg = 82.1\n")  # fmt: skip
+    spec = tmp_path / "spec.toml"
+    spec.write_text(
+        f'[trials]\nname = "nogt"\nn = 2\nseed = 1\ntimeout_s = 40.0\n[scenario]\nfootage = "{clip}"\n'
+        "north_m = [-20.0, 20.0]\neast_m = [-20.0, 20.0]\naltitude_m = 8.0\nland_at_s = 0.5\n"
+        '[scoring]\ncriterion = { name = "safe", landed = true, min_dist_object_m = 5.0 }\n'
+    )
+    return spec
+
+
+def test_without_ground_truth_object_distances_are_unavailable_not_zero(
+    tmp_path: Path, nogt_spec: Path
+) -> None:
+    a_dir, b_dir = tmp_path / "a", tmp_path / "b"
+    a, _ = _run(nogt_spec, "descend", a_dir), _run(nogt_spec, "descend", b_dir)
+    page = Tables((a_dir / "report.html").read_text())
+    for t, row in zip(page.records("trials"), a["rows"], strict=True):
+        assert row["landed"] is True and row["gt_objects"] is False
+        for key in (*OBJ, "dist_person_m", "min_dist_person_m", "risk_level"):
+            assert row[key] is None and t[key] == "unavailable", key
+        assert t["success"] == "—" and row["success"] is None  # the criterion needs ground truth
+        assert float(t["touchdown_speed_m_s"]) == row["touchdown_speed_m_s"]
+    sc = page.scores()
+    for key in OBJ:
+        assert sc[key][1:] == ["0", "unavailable"] and a["aggregate"]["scores"][key] == {"n": 0}
+    r = _cli("trials", "compare", str(a_dir), str(b_dir), "--html", str(tmp_path / "cmp.html"), timeout=120)
+    assert r.returncode == 0, r.stderr
+    for key in OBJ:
+        line = next(ln for ln in r.stdout.splitlines() if ln.strip().startswith(key + " "))
+        assert "unavailable" in line
+    assert "success: unavailable" in r.stdout
+    page = Tables((tmp_path / "cmp.html").read_text())
+    assert page.scores()[OBJ[1]][1:] == ["0", "unavailable"]
+    assert all(p[OBJ[1]] == "— / — / —" for p in page.records("pairs"))
+
+
+def test_bad_paths_and_pilots_are_one_line(tmp_path: Path) -> None:
+    def one_line(r: subprocess.CompletedProcess[str], needle: str) -> None:
+        err = r.stderr.strip()
+        assert r.returncode == 2 and "Traceback" not in err and len(err.splitlines()) == 1, err
+        assert err.startswith("viva-sitl trials: ") and needle in err, err
+
+    out = tmp_path / "typo"
+    one_line(_cli("trials", "run", str(SPEC), "--pilot", "decsend", "-o", str(out), timeout=60),
+             "program 'decsend' not found on PATH (built-in pilots: descend, oracle")  # fmt: skip
+    assert not out.exists()  # refused before any trial ran
+    one_line(_cli("trials", "run", str(SPEC), "--pilot", "./nope.sh --x", "-o", str(out), timeout=60),
+             "'./nope.sh' not an executable file")  # fmt: skip
+    one_line(_cli("trials", "compare", str(tmp_path), str(tmp_path), timeout=60), "no results")
+    one_line(_cli("trials", "report", str(tmp_path / "none"), timeout=60), "no results")
+    (tmp_path / "results.json").write_text("{")
+    one_line(_cli("trials", "report", str(tmp_path), timeout=60), "not valid JSON")
+    one_line(_cli("trials", "show", str(tmp_path / "results.json"), timeout=60), "not valid JSON")
