@@ -231,3 +231,23 @@ def test_bad_paths_and_pilots_are_one_line(tmp_path: Path) -> None:
     (tmp_path / "results.json").write_text("{")
     one_line(_cli("trials", "report", str(tmp_path), timeout=60), "not valid JSON")
     one_line(_cli("trials", "show", str(tmp_path / "results.json"), timeout=60), "not valid JSON")
+
+
+def test_a_trial_without_flight_log_reports_unavailable_not_zero() -> None:
+    """A worker that died or hung leaves no log: its flight time, path, energy are null, and the aggregates
+    (means, n) only count the trials that flew."""
+    from viva_sitl.evaluation.campaign import failed_row
+    from viva_sitl.evaluation.spec import draw_scenarios, load_spec
+    from viva_sitl.evaluation.stats import aggregate
+
+    spec = load_spec(SPEC)
+    sc = draw_scenarios(spec, 1)[0]
+    row = failed_row(spec, sc, "worker_died", "worker died (exit code -9)")
+    assert row["end"] == "worker_died" and row["landed"] is False and row["success"] is False
+    for key in ("end_t_s", "flight_time_s", "path_length_m", "energy_wh", "time_outside_footage_s", "failsafes",
+                "touchdown_speed_m_s", "min_dist_object_m", "risk_level"):  # fmt: skip
+        assert row[key] is None, key
+    flown = {**row, "end": "landed", "path_length_m": 20.0, "flight_time_s": 30.0, "energy_wh": 1.0}
+    agg = aggregate([row, flown], "x")
+    assert agg["scores"]["path_length_m"]["n"] == 1 and agg["scores"]["path_length_m"]["mean"] == 20.0
+    assert agg["scores"]["flight_time_s"]["mean"] == 30.0
