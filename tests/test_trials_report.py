@@ -251,3 +251,23 @@ def test_a_trial_without_flight_log_reports_unavailable_not_zero() -> None:
     agg = aggregate([row, flown], "x")
     assert agg["scores"]["path_length_m"]["n"] == 1 and agg["scores"]["path_length_m"]["mean"] == 20.0
     assert agg["scores"]["flight_time_s"]["mean"] == 30.0
+
+
+def test_every_result_column_is_documented_with_unit_meaning_and_null() -> None:
+    """docs/trials-results.md has one table row per results column (no more, no fewer), each with a unit, a
+    meaning and when it is null, and names the current schema."""
+    from viva_sitl.evaluation.scoring import COLUMNS, SCHEMA
+
+    text = (REPO / "docs" / "trials-results.md").read_text()
+    assert SCHEMA in text
+    documented: dict[str, list[str]] = {}
+    for line in text.splitlines():
+        cells = [c.strip() for c in line.strip().strip("|").split("|")]
+        if line.startswith("| `") and len(cells) == 4:
+            documented[cells[0].strip("`")] = cells[1:]
+    assert list(documented) == list(COLUMNS)  # same names, results.csv order
+    for name, (unit, meaning, null) in documented.items():
+        assert unit and len(meaning) > 10 and null, name
+        suffix = next((u for u in ("_m_s", "_deg", "_wh", "_m", "_s") if name.endswith(u)), None)
+        if suffix is not None:  # the unit in the name is the documented one
+            assert unit == {"_m_s": "m/s", "_deg": "deg", "_wh": "Wh", "_m": "m", "_s": "s"}[suffix], name
