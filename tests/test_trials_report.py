@@ -12,6 +12,7 @@ from html.parser import HTMLParser
 from pathlib import Path
 
 import pytest
+from dashboard_browser import chromium_paths
 
 REPO = Path(__file__).resolve().parents[1]
 SPEC = REPO / "configs" / "trials" / "synthetic_emergency.toml"
@@ -93,9 +94,20 @@ def _same(cell: str, v: object) -> bool:
     return cell == str(v)
 
 
-def test_report_and_compare_show_object_distances_as_in_results_json(tmp_path: Path) -> None:
-    a_dir, b_dir = tmp_path / "descend", tmp_path / "oracle"
-    a, b = _run(SPEC, "descend", a_dir), _run(SPEC, "oracle", b_dir)
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
+    """Two real 2-trial runs on the same scenarios of the synthetic field: descend (A) and oracle (B)."""
+    d = tmp_path_factory.mktemp("runs")
+    _run(SPEC, "descend", d / "descend")
+    _run(SPEC, "oracle", d / "oracle")
+    return d / "descend", d / "oracle"
+
+
+def test_report_and_compare_show_object_distances_as_in_results_json(
+    tmp_path: Path, runs: tuple[Path, Path]
+) -> None:
+    a_dir, b_dir = runs
+    a, b = (json.loads((x / "results.json").read_text()) for x in runs)
     for doc, out in ((a, a_dir), (b, b_dir)):
         page = Tables((out / "report.html").read_text())
         trials = page.records("trials")
@@ -271,3 +283,53 @@ def test_every_result_column_is_documented_with_unit_meaning_and_null() -> None:
         suffix = next((u for u in ("_m_s", "_deg", "_wh", "_m", "_s") if name.endswith(u)), None)
         if suffix is not None:  # the unit in the name is the documented one
             assert unit == {"_m_s": "m/s", "_deg": "deg", "_wh": "Wh", "_m": "m", "_s": "s"}[suffix], name
+
+
+@pytest.mark.skipif(
+    chromium_paths() is None, reason="Chromium absent: apt-get install chromium chromium-driver"
+)
+def test_report_page_looks_right_in_headless_chromium(runs: tuple[Path, Path]) -> None:
+    """The page a person opens: every figure decodes, wide tables scroll inside their box instead of widening the
+    page, and the all-trials table shows the object distances of results.json."""
+    pytest.importorskip("selenium", reason="selenium is in the test extra: pip install -e '.[test]'")
+    from dashboard_browser import chromium, screenshot
+    from selenium.webdriver.common.by import By
+
+    a_dir = runs[0]
+    doc = json.loads((a_dir / "results.json").read_text())
+    with chromium() as driver:
+        driver.get((a_dir / "report.html").resolve().as_uri())
+        imgs = driver.execute_script(
+            "return [...document.images].map(i => [i.alt, i.complete, i.naturalWidth, i.getBoundingClientRect().width])"
+        )
+        assert len(imgs) == 2, imgs  # touchdowns over the synthetic field, distributions
+        for alt, complete, natural_w, shown_w in imgs:
+            assert complete and natural_w > 300 and shown_w > 300, (alt, natural_w, shown_w)
+        page_w, view_w = driver.execute_script(
+            "return [document.documentElement.scrollWidth, document.documentElement.clientWidth]"
+        )
+        assert page_w <= view_w, f"the page is {page_w} px wide in a {view_w} px window"
+        head = [c.text for c in driver.find_elements(By.CSS_SELECTOR, "#trials tr:first-child th")]
+        for row in doc["rows"]:
+            cells = driver.find_elements(By.CSS_SELECTOR, f"#trials tr[data-trial='{row['trial']}'] td")
+            shown = dict(zip(head, [c.text for c in cells], strict=True))
+            for key in OBJ:
+                assert float(shown[key]) == row[key], (key, shown[key], row[key])
+        screenshot(driver, a_dir, "report")
+        # the compare page: its wide pairs table scrolls inside its box too, and shows B - A per pair
+        cmp_html = a_dir.parent / "cmp-browser.html"
+        r = _cli("trials", "compare", str(a_dir), str(runs[1]), "--html", str(cmp_html), timeout=120)
+        assert r.returncode == 0, r.stderr
+        driver.get(cmp_html.resolve().as_uri())
+        page_w, view_w = driver.execute_script(
+            "return [document.documentElement.scrollWidth, document.documentElement.clientWidth]"
+        )
+        assert page_w <= view_w, f"the compare page is {page_w} px wide in a {view_w} px window"
+        b_rows = {x["trial"]: x for x in json.loads((runs[1] / "results.json").read_text())["rows"]}
+        head = [c.text for c in driver.find_elements(By.CSS_SELECTOR, "#pairs tr:first-child th")]
+        for row in doc["rows"]:
+            cells = driver.find_elements(By.CSS_SELECTOR, f"#pairs tr[data-trial='{row['trial']}'] td")
+            va, vb, dv = (float(x) for x in cells[head.index("min_dist_object_m")].text.split(" / "))
+            other = b_rows[row["trial"]]["min_dist_object_m"]
+            assert (va, vb) == (row["min_dist_object_m"], other) and dv == pytest.approx(vb - va, abs=1e-4)
+        screenshot(driver, a_dir, "compare")

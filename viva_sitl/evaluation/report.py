@@ -198,7 +198,7 @@ def _fmt(v: Any) -> str:
 _CSS = """body{font-family:sans-serif;margin:24px;max-width:1200px;color:#222}table{border-collapse:collapse;
 font-size:13px}td,th{border:1px solid #ccc;padding:3px 6px;text-align:right}th{background:#eee}
 td.l,th.l{text-align:left}.ok{color:#1a9850;font-weight:bold}.bad{color:#d73027;font-weight:bold}img{max-width:100%}
-code{background:#f4f4f4;padding:1px 4px}"""
+code{background:#f4f4f4;padding:1px 4px}.scroll{overflow-x:auto;max-width:100%}#pairs td{white-space:nowrap}"""
 
 
 def render_html(doc: dict[str, Any], out_dir: Path) -> str:
@@ -230,7 +230,7 @@ def render_html(doc: dict[str, Any], out_dir: Path) -> str:
                  "touchdown); <i>unavailable</i> = no trial has it, never 0. <code>dist_*</code>: at touchdown, "
                  "<code>min_dist_*</code>: minimum over the final descent; <code>*_object_m</code>: the nearest "
                  "tracked object of any class, motion-derived tracks included.</p>"
-                 "<table id='scores'><tr><th class='l'>score</th><th>n</th><th>mean</th><th>95 % CI (bootstrap)</th>"
+                 "<div class='scroll'><table id='scores'><tr><th class='l'>score</th><th>n</th><th>mean</th><th>95 % CI (bootstrap)</th>"
                  "<th>median</th><th>p10</th><th>p90</th><th>min</th><th>max</th></tr>")  # fmt: skip
     for key, s in agg["scores"].items():
         if s["n"] == 0:
@@ -243,7 +243,7 @@ def render_html(doc: dict[str, Any], out_dir: Path) -> str:
                      f"{_fmt(s['mean_ci95'][0])} – {_fmt(s['mean_ci95'][1])}</td><td>{_fmt(s['median'])}</td>"
                      f"<td>{_fmt(s['p10'])}</td><td>{_fmt(s['p90'])}</td><td>{_fmt(s['min'])}</td>"
                      f"<td>{_fmt(s['max'])}</td></tr>")  # fmt: skip
-    parts.append("</table>")
+    parts.append("</table></div>")
     try:
         import matplotlib  # noqa: F401
 
@@ -267,7 +267,7 @@ def render_html(doc: dict[str, Any], out_dir: Path) -> str:
         parts.append(f"<img alt='distributions' src='data:image/png;base64,"
                      f"{figure_distributions(rows, spec.get('criterion'))}'>")  # fmt: skip
     worst = sorted(rows, key=_badness)[:15]
-    parts.append("<h2>Worst trials</h2><table id='worst'><tr><th>trial</th><th class='l'>end</th><th>success</th>"
+    parts.append("<h2>Worst trials</h2><div class='scroll'><table id='worst'><tr><th>trial</th><th class='l'>end</th><th>success</th>"
                  "<th>touchdown speed (m/s)</th><th>min dist person (m)</th><th>min dist object (m)</th><th>risk</th>"
                  "<th>time to land (s)</th><th class='l'>why</th><th class='l'>logs</th></tr>")  # fmt: skip
     for r in worst:
@@ -285,7 +285,7 @@ def render_html(doc: dict[str, Any], out_dir: Path) -> str:
             + (f" <a href='{d}/vac.mp4'>video</a>" if (out_dir / d / "vac.mp4").exists() else "")
             + "</td></tr>"
         )  # fmt: skip
-    parts.append("</table>")
+    parts.append("</table></div>")
     parts.extend(_all_trials_table(rows))
     parts.append("</body></html>")
     return "\n".join(parts)
@@ -318,7 +318,7 @@ def _cell(r: Row, key: str) -> str:
 def _all_trials_table(rows: list[Row]) -> list[str]:
     out = ["<h2>All trials</h2><p>One row per trial (as in <a href='results.csv'>results.csv</a>; units in the "
            "column names). <i>unavailable</i>: the footage has no ground truth for that score; —: it does not "
-           "apply (no touchdown, nobody of that class in the footage).</p><table id='trials'><tr>"
+           "apply (no touchdown, nobody of that class in the footage).</p><div class='scroll'><table id='trials'><tr>"
            + "".join(f"<th{' class=l' if k in _LEFT else ''} data-col='{k}'>{k}</th>" for k in TRIAL_TABLE_COLUMNS)
            + "</tr>"]  # fmt: skip
     for r in rows:
@@ -330,7 +330,7 @@ def _all_trials_table(rows: list[Row]) -> list[str]:
                 c = " class='ok'" if ok else " class='bad'"
             cells.append(f"<td{c}>{_cell(r, k)}</td>")
         out.append(f"<tr data-trial='{int(r['trial'])}'>" + "".join(cells) + "</tr>")
-    out.append("</table>")
+    out.append("</table></div>")
     return out
 
 
@@ -401,7 +401,7 @@ def render_compare_html(res: dict[str, Any], a_dir: str, b_dir: str) -> str:
                      f"{s['mcnemar_p']}.</p>")  # fmt: skip
     else:
         parts.append("<h2>Success</h2><p id='success'><b>unavailable</b> (no ground truth)</p>")
-    parts.append("<h2>Scores (paired, B − A)</h2><table id='scores'><tr><th class='l'>score</th><th>pairs</th>"
+    parts.append("<h2>Scores (paired, B − A)</h2><div class='scroll'><table id='scores'><tr><th class='l'>score</th><th>pairs</th>"
                  "<th>mean A</th><th>mean B</th><th>mean B − A</th><th>95 % CI (bootstrap)</th></tr>")  # fmt: skip
     for key, d in res["scores"].items():
         if not d["pairs"]:
@@ -411,8 +411,8 @@ def render_compare_html(res: dict[str, Any], a_dir: str, b_dir: str) -> str:
         parts.append(f"<tr data-score='{key}'><td class='l'>{key}</td><td>{d['pairs']}</td>"
                      f"<td>{_fmt(d['mean_a'])}</td><td>{_fmt(d['mean_b'])}</td><td>{_fmt(d['mean_diff_b_minus_a'])}"
                      f"</td><td>{_fmt(d['diff_ci95'][0])} – {_fmt(d['diff_ci95'][1])}</td></tr>")  # fmt: skip
-    parts.append("</table><h2>Pairs</h2><p>Per pair: A / B / B − A (exact values from the runs' results.json; "
-                 "— = unavailable on either side).</p><table id='pairs'><tr><th data-col='trial'>trial</th>"
+    parts.append("</table></div><h2>Pairs</h2><p>Per pair: A / B / B − A (exact values from the runs' results.json; "
+                 "— = unavailable on either side).</p><div class='scroll'><table id='pairs'><tr><th data-col='trial'>trial</th>"
                  "<th class='l' data-col='end'>end A / B</th><th data-col='success'>success A / B</th>"
                  + "".join(f"<th data-col='{c}'>{c}</th>" for c in PAIRED_TRIAL_COLUMNS) + "</tr>")  # fmt: skip
 
@@ -429,5 +429,5 @@ def render_compare_html(res: dict[str, Any], a_dir: str, b_dir: str) -> str:
         for c in PAIRED_TRIAL_COLUMNS:
             cells.append(f"<td>{v(e[c + '_a'])} / {v(e[c + '_b'])} / {v(e[c + '_diff'])}</td>")
         parts.append(f"<tr data-trial='{e['trial']}'>" + "".join(cells) + "</tr>")
-    parts.append("</table></body></html>")
+    parts.append("</table></div></body></html>")
     return "\n".join(parts)
