@@ -73,9 +73,10 @@ def _cli(*args: str, timeout: float = 300) -> subprocess.CompletedProcess[str]:
                           timeout=timeout)  # fmt: skip
 
 
-def _run(spec: Path, pilot: str, out: Path, n: int = 2) -> dict:  # type: ignore[type-arg]
+def _run(spec: Path, pilot: str, out: Path, n: int = 2, seed: int | None = None) -> dict:  # type: ignore[type-arg]
+    more = ["--seed", str(seed)] if seed is not None else []
     r = _cli("trials", "run", str(spec), "--pilot", pilot, "--n", str(n), "--jobs", "1", "-o", str(out),
-             "--no-progress")  # fmt: skip
+             "--no-progress", *more)  # fmt: skip
     assert r.returncode == 0, r.stderr
     doc: dict = json.loads((out / "results.json").read_text())  # type: ignore[type-arg]
     return doc
@@ -168,6 +169,14 @@ def test_report_and_compare_show_object_distances_as_in_results_json(
     # a results.json file works where OUT_DIR is expected
     r = _cli("trials", "compare", str(a_dir / "results.json"), str(b_dir), timeout=120)
     assert r.returncode == 0 and "2 paired trials, same scenarios: True" in r.stdout, r.stderr
+    # runs over other scenarios (another seed) have nothing to pair: one line, not an empty comparison
+    other = tmp_path / "seed5"
+    _run(SPEC, "descend", other, n=1, seed=5)
+    r = _cli("trials", "compare", str(a_dir), str(other), timeout=120)
+    assert r.returncode == 2 and r.stderr.strip().splitlines() == [
+        f"viva-sitl trials: {a_dir} and {other} have no trial in common (pairs match on trial index and scenario "
+        "seed): run both pilots on the same spec with the same --seed"
+    ], r.stderr
     # an output that cannot be written: one line, no traceback
     r = _cli(
         "trials",
@@ -179,7 +188,7 @@ def test_report_and_compare_show_object_distances_as_in_results_json(
         timeout=120,
     )
     assert r.returncode == 2 and r.stderr.strip().splitlines() == [
-        f"viva-sitl trials: No such file or directory: {tmp_path / 'no' / 'such' / 'c.json'}"
+        f"viva-sitl trials: {tmp_path / 'no' / 'such' / 'c.json'}: No such file or directory"
     ], r.stderr
 
 
@@ -243,6 +252,15 @@ def test_bad_paths_and_pilots_are_one_line(tmp_path: Path) -> None:
     (tmp_path / "results.json").write_text("{")
     one_line(_cli("trials", "report", str(tmp_path), timeout=60), "not valid JSON")
     one_line(_cli("trials", "show", str(tmp_path / "results.json"), timeout=60), "not valid JSON")
+    one_line(_cli("trials", "run", str(SPEC), "-o", str(tmp_path / "results.json"), timeout=60),
+             f"{tmp_path / 'results.json'}: File exists")  # fmt: skip
+    # a reader that stops early (`| head`) is no error
+    p = subprocess.Popen([sys.executable, "-m", "viva_sitl", "trials", "scenarios", str(SPEC), "--n", "2000"],
+                         cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)  # fmt: skip
+    assert p.stdout is not None and p.stdout.readline().startswith('{"index": 0,')
+    p.stdout.close()
+    _, err = p.communicate(timeout=60)
+    assert p.returncode == 0 and err == "", err
 
 
 def test_a_trial_without_flight_log_reports_unavailable_not_zero() -> None:

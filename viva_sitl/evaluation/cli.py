@@ -164,8 +164,12 @@ def trials_main(argv: list[str]) -> int:
     except (ConfigError, ValueError, RuntimeError) as exc:
         print(f"viva-sitl trials: {exc}", file=sys.stderr)
         return 2
+    except BrokenPipeError:  # `trials scenarios SPEC | head`: the reader has what it wanted
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # no second error at exit's flush
+        return 0
     except OSError as exc:  # an output path that cannot be written, a directory that cannot be read
-        print(f"viva-sitl trials: {exc.strerror or exc}: {exc.filename or ''}".rstrip(": "), file=sys.stderr)
+        where = f"{exc.filename}: " if exc.filename else ""
+        print(f"viva-sitl trials: {where}{exc.strerror or exc}", file=sys.stderr)
         return 2
     return 2
 
@@ -267,6 +271,11 @@ def _compare(args: argparse.Namespace) -> int:
 
     a, b = read_results(args.a), read_results(args.b)
     res = compare_docs(a, b)
+    if not res["pairs"]:
+        raise ValueError(
+            f"{args.a} and {args.b} have no trial in common (pairs match on trial index and scenario seed): "
+            "run both pilots on the same spec with the same --seed"
+        )
     if args.out:
         Path(args.out).write_text(json.dumps(res, indent=1))
     if args.html:
