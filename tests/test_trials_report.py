@@ -177,6 +177,14 @@ def test_report_and_compare_show_object_distances_as_in_results_json(
         f"viva-sitl trials: {a_dir} and {other} have no trial in common (pairs match on trial index and scenario "
         "seed): run both pilots on the same spec with the same --seed"
     ], r.stderr
+    # another pilot's results are not overwritten by a copy-pasted -o
+    before = (b_dir / "results.json").read_text()
+    r = _cli("trials", "run", str(SPEC), "--pilot", "descend", "--n", "2", "-o", str(b_dir), timeout=120)
+    assert r.returncode == 2 and r.stderr.strip().splitlines() == [
+        f"viva-sitl trials: {b_dir} holds the results of pilot 'oracle' on spec 'synthetic-emergency': give this "
+        "run (pilot 'descend', spec 'synthetic-emergency') its own -o, or delete that directory"
+    ], r.stderr
+    assert (b_dir / "results.json").read_text() == before
     # an output that cannot be written: one line, no traceback
     r = _cli(
         "trials",
