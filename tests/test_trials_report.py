@@ -184,6 +184,8 @@ def test_report_and_compare_show_object_distances_as_in_results_json(
         f"viva-sitl trials: {b_dir} holds the results of pilot 'oracle' on spec 'synthetic-emergency': give this "
         "run (pilot 'descend', spec 'synthetic-emergency') its own -o, or delete that directory"
     ], r.stderr
+    r = _cli("trials", "fly", str(SPEC), "--trial", "0", "-o", str(b_dir), timeout=120)
+    assert r.returncode == 2 and "holds the results of pilot 'oracle'" in r.stderr and "ready" not in r.stdout
     assert (b_dir / "results.json").read_text() == before
     # an output that cannot be written: one line, no traceback
     r = _cli(

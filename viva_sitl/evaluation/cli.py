@@ -261,6 +261,7 @@ def _fly(args: argparse.Namespace) -> int:
     spec = load_spec(args.spec)
     safe = "".join(ch if ch.isalnum() or ch in "-_" else "_" for ch in args.name)[:40]
     out = Path(args.out) if args.out else Path("trials-out") / f"{spec.name}-{safe}-trial-{args.trial}"
+    _refuse_other_run(out, spec.name, args.name)
     try:
         row = fly_trial(
             spec, args.trial, out, n=args.n, seed=args.seed, speed=args.speed, pilot=args.name,
