@@ -93,6 +93,16 @@ def failed_row(spec: TrialSpec, scenario: Scenario, end: str, detail: str) -> Ro
 
     log = TrialLog(end=end, end_detail=detail)
     row = score_trial(scenario, log, None, spec)
+    # no flight log: what the log would have measured is unavailable, not 0 (a 0 would pull the means down)
+    for key in (
+        "end_t_s",
+        "flight_time_s",
+        "path_length_m",
+        "energy_wh",
+        "time_outside_footage_s",
+        "failsafes",
+    ):
+        row[key] = None
     return row
 
 

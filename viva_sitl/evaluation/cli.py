@@ -98,6 +98,11 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("a", help="OUT_DIR of run A")
     c.add_argument("b", help="OUT_DIR of run B")
     c.add_argument("-o", "--out", help="write the comparison as JSON here")
+    c.add_argument(
+        "--html", help="write the comparison as a self-contained HTML page here (every pair listed)"
+    )
+    rp = sub.add_parser("report", help="write OUT_DIR/report.html again from its results.json")
+    rp.add_argument("out", help="OUT_DIR of a run")
     s = sub.add_parser("show", help="summary of a run, or one trial")
     s.add_argument("out", help="OUT_DIR of a run")
     s.add_argument("--trial", type=_nonneg_int, help="show this trial's row, scenario and events")
@@ -119,7 +124,13 @@ def _print_summary(doc: dict[str, Any]) -> None:
     else:
         print(f"  {agg['criterion']}: unavailable (no ground truth)")
     print("  ends: " + ", ".join(f"{k} {v}" for k, v in agg["ends"].items()))
-    for key in ("touchdown_speed_m_s", "min_dist_person_m", "risk_level", "time_to_land_s"):
+    for key in (
+        "touchdown_speed_m_s",
+        "min_dist_person_m",
+        "min_dist_object_m",
+        "risk_level",
+        "time_to_land_s",
+    ):
         st = agg["scores"][key]
         if st["n"]:
             print(f"  {key}: mean {st['mean']} (95 % CI {st['mean_ci95'][0]}..{st['mean_ci95'][1]}), "
@@ -141,6 +152,8 @@ def trials_main(argv: list[str]) -> int:
             return _compare(args)
         if args.cmd == "show":
             return _show(args)
+        if args.cmd == "report":
+            return _report(args)
         if args.cmd == "scenarios":
             from viva_sitl.evaluation.spec import draw_scenarios, load_spec
 
@@ -151,7 +164,57 @@ def trials_main(argv: list[str]) -> int:
     except (ConfigError, ValueError, RuntimeError) as exc:
         print(f"viva-sitl trials: {exc}", file=sys.stderr)
         return 2
+    except BrokenPipeError:  # `trials scenarios SPEC | head`: the reader has what it wanted
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # no second error at exit's flush
+        return 0
+    except OSError as exc:  # an output path that cannot be written, a directory that cannot be read
+        where = f"{exc.filename}: " if exc.filename else ""
+        print(f"viva-sitl trials: {where}{exc.strerror or exc}", file=sys.stderr)
+        return 2
     return 2
+
+
+def check_external_pilot(pilot: str) -> None:
+    """A pilot command whose program does not exist fails here with one line, not as N failed trials (a typo
+    such as `--pilot decsend` is an external command to the runner). Commands starting with a placeholder
+    ({python}) are left to the trial."""
+    import shlex
+    import shutil
+
+    from viva_sitl.evaluation.pilots import BUILTIN_PILOTS, is_inprocess
+
+    if is_inprocess(pilot):
+        return
+    try:
+        argv = shlex.split(pilot)
+    except ValueError as exc:
+        raise ValueError(f"pilot command {pilot!r}: {exc}") from None
+    if not argv:
+        raise ValueError("--pilot is empty")
+    prog = argv[0]
+    if "{" in prog:
+        return
+    if shutil.which(prog) is None:
+        where = "not an executable file" if os.sep in prog else "not found on PATH"
+        raise ValueError(
+            f"pilot {pilot!r}: program {prog!r} {where} (built-in pilots: {', '.join(sorted(BUILTIN_PILOTS))}; "
+            'a Python class: package.module:Class; a script: "{python} path/to/script.py {mavsdk_url}")'
+        )
+
+
+def _refuse_other_run(out: Path, spec_name: str, pilot: str) -> None:
+    """OUT holding another pilot's or another spec's results is not overwritten (a copy-pasted -o would lose a
+    run); the same pilot and spec run again (or --resume) are fine: the trials are deterministic."""
+    try:
+        doc = json.loads((out / "results.json").read_text())
+        held = (str(doc["pilot"]), str(doc["spec"]["name"]))
+    except (OSError, ValueError, KeyError, TypeError):
+        return  # no run there (or no readable one): nothing to lose
+    if held != (pilot, spec_name):
+        raise ValueError(
+            f"{out} holds the results of pilot {held[0]!r} on spec {held[1]!r}: give this run (pilot {pilot!r}, "
+            f"spec {spec_name!r}) its own -o, or delete that directory"
+        )
 
 
 def _run(args: argparse.Namespace) -> int:
@@ -166,9 +229,11 @@ def _run(args: argparse.Namespace) -> int:
             raise ValueError(f"--speed must be a positive number, got {args.speed:g}")
         spec = dataclasses.replace(spec, speed=args.speed)
     pilot = args.pilot or spec.pilot
+    check_external_pilot(pilot)
     safe = "".join(ch if ch.isalnum() or ch in "-_" else "_" for ch in pilot.split("/")[-1])[:40]
     name = f"{spec.name}-{safe}" + ("-trial-" + "-".join(map(str, args.trial)) if args.trial else "")
     out = Path(args.out) if args.out else Path("trials-out") / name
+    _refuse_other_run(out, spec.name, pilot)
     try:
         camp = run_campaign(
             spec, pilot, out, n=args.n, seed=args.seed, jobs=args.jobs, backend=args.backend,
@@ -196,6 +261,7 @@ def _fly(args: argparse.Namespace) -> int:
     spec = load_spec(args.spec)
     safe = "".join(ch if ch.isalnum() or ch in "-_" else "_" for ch in args.name)[:40]
     out = Path(args.out) if args.out else Path("trials-out") / f"{spec.name}-{safe}-trial-{args.trial}"
+    _refuse_other_run(out, spec.name, args.name)
     try:
         row = fly_trial(
             spec, args.trial, out, n=args.n, seed=args.seed, speed=args.speed, pilot=args.name,
@@ -222,8 +288,17 @@ def _compare(args: argparse.Namespace) -> int:
 
     a, b = read_results(args.a), read_results(args.b)
     res = compare_docs(a, b)
+    if not res["pairs"]:
+        raise ValueError(
+            f"{args.a} and {args.b} have no trial in common (pairs match on trial index and scenario seed): "
+            "run both pilots on the same spec with the same --seed"
+        )
     if args.out:
         Path(args.out).write_text(json.dumps(res, indent=1))
+    if args.html:
+        from viva_sitl.evaluation.report import render_compare_html
+
+        Path(args.html).write_text(render_compare_html(res, args.a, args.b))
     s = res["success"]
     print(f"A = {res['a']['pilot']} ({args.a}), B = {res['b']['pilot']} ({args.b}): {res['pairs']} paired trials, "
           f"same scenarios: {res['same_scenarios']}")  # fmt: skip
@@ -242,7 +317,27 @@ def _compare(args: argparse.Namespace) -> int:
     for key, d in res["scores"].items():
         if d["pairs"]:
             print(f"  {key:32s} A {d['mean_a']:>9} B {d['mean_b']:>9}  B-A {d['mean_diff_b_minus_a']:>9} "
-                  f"(95 % CI {d['diff_ci95'][0]}..{d['diff_ci95'][1]})")  # fmt: skip
+                  f"(95 % CI {d['diff_ci95'][0]}..{d['diff_ci95'][1]}), {d['pairs']} pairs")  # fmt: skip
+        else:
+            print(f"  {key:32s} unavailable (no pair has it on both sides)")
+    return 0
+
+
+def _run_dir(path: str) -> Path:
+    """OUT_DIR from OUT_DIR or its results.json (read_results takes both)."""
+    p = Path(path)
+    return p.parent if p.name == "results.json" and not p.is_dir() else p
+
+
+def _report(args: argparse.Namespace) -> int:
+    from viva_sitl.evaluation.report import read_results, render_html
+
+    out = _run_dir(args.out)
+    doc = read_results(out)
+    tmp = out / "report.html.tmp"
+    tmp.write_text(render_html(doc, out))
+    tmp.replace(out / "report.html")
+    print(f"report: {out / 'report.html'} ({doc['trials_done']} of {doc['trials_total']} trials)")
     return 0
 
 
@@ -257,7 +352,7 @@ def _show(args: argparse.Namespace) -> int:
     if args.trial not in rows:
         raise ValueError(f"trial {args.trial} is not in {args.out} (done: {sorted(rows)[:20]}...)")
     print(json.dumps(rows[args.trial], indent=1))
-    ev = Path(args.out) / "trials" / f"{args.trial:04d}" / "events.jsonl"
+    ev = _run_dir(args.out) / "trials" / f"{args.trial:04d}" / "events.jsonl"
     if ev.exists():
         for line in ev.read_text().splitlines():
             e = json.loads(line)

@@ -62,11 +62,16 @@ def write_reports(camp: Campaign) -> None:
 
 
 def read_results(out_dir: str | Path) -> dict[str, Any]:
-    p = Path(out_dir) / "results.json"
+    """A run's results.json (OUT_DIR, or the results.json file itself); ValueError with one line if none."""
+    p = Path(out_dir)
+    if p.is_dir() or p.name != "results.json":
+        p = p / "results.json"
     try:
         doc: dict[str, Any] = json.loads(p.read_text())
-    except FileNotFoundError:
+    except (FileNotFoundError, NotADirectoryError):
         raise ValueError(f"{p}: no results (run `viva-sitl trials run` first)") from None
+    except IsADirectoryError:
+        raise ValueError(f"{p}: a directory, not a results file") from None
     except json.JSONDecodeError as exc:
         raise ValueError(f"{p}: not valid JSON: {exc}") from None
     if doc.get("schema") in OLDER_SCHEMAS:  # the columns added since read as unavailable
@@ -153,10 +158,13 @@ def figure_distributions(rows: list[Row], criterion: dict[str, Any] | None) -> s
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    keys = [("touchdown_speed_m_s", "touchdown speed (m/s)"), ("min_dist_person_m", "min distance to people in final descent (m)"),
+    keys = [("touchdown_speed_m_s", "touchdown speed (m/s)"),
+            ("min_dist_person_m", "min distance to people, final descent (m)"),
+            ("min_dist_vehicle_m", "min distance to vehicles, final descent (m)"),
+            ("min_dist_object_m", "min distance to any object, final descent (m)"),
             ("risk_level", "risk level at touchdown"), ("time_to_land_s", "time to land (s)"),
             ("path_length_m", "path length (m)"), ("energy_wh", "energy used (Wh)")]  # fmt: skip
-    fig, axes = plt.subplots(2, 3, figsize=(12, 6))
+    fig, axes = plt.subplots(2, 4, figsize=(16, 6))
     for ax, (key, label) in zip(axes.ravel(), keys, strict=True):
         x = np.array([r[key] for r in rows if r.get(key) is not None], float)
         if x.size == 0:
@@ -169,6 +177,8 @@ def figure_distributions(rows: list[Row], criterion: dict[str, Any] | None) -> s
         if criterion:
             lim = {"touchdown_speed_m_s": criterion.get("max_touchdown_speed_m_s"),
                    "min_dist_person_m": criterion.get("min_dist_person_m"),
+                   "min_dist_vehicle_m": criterion.get("min_dist_vehicle_m"),
+                   "min_dist_object_m": criterion.get("min_dist_object_m"),
                    "risk_level": criterion.get("max_risk_level")}.get(key)  # fmt: skip
             if lim is not None:
                 ax.axvline(float(lim), color="#d73027", ls="--", lw=1)
@@ -188,7 +198,7 @@ def _fmt(v: Any) -> str:
 _CSS = """body{font-family:sans-serif;margin:24px;max-width:1200px;color:#222}table{border-collapse:collapse;
 font-size:13px}td,th{border:1px solid #ccc;padding:3px 6px;text-align:right}th{background:#eee}
 td.l,th.l{text-align:left}.ok{color:#1a9850;font-weight:bold}.bad{color:#d73027;font-weight:bold}img{max-width:100%}
-code{background:#f4f4f4;padding:1px 4px}"""
+code{background:#f4f4f4;padding:1px 4px}.scroll{overflow-x:auto;max-width:100%}#pairs td{white-space:nowrap}"""
 
 
 def render_html(doc: dict[str, Any], out_dir: Path) -> str:
@@ -215,19 +225,25 @@ def render_html(doc: dict[str, Any], out_dir: Path) -> str:
         + f". Landed: {_fmt(agg['landed_rate'])}. Ends: "
         + ", ".join(f"{k} {v}" for k, v in agg["ends"].items()) + ".</p>"
     )  # fmt: skip
-    parts.append("<table><tr><th class='l'>score</th><th>n</th><th>mean</th><th>95 % CI (bootstrap)</th>"
+    parts.append("<h2>Scores</h2><p>Over the trials where a score is available: <i>n</i> counts them (a distance "
+                 "needs the footage's object tracks and an object of that class in them, touchdown scores a "
+                 "touchdown); <i>unavailable</i> = no trial has it, never 0. <code>dist_*</code>: at touchdown, "
+                 "<code>min_dist_*</code>: minimum over the final descent; <code>*_object_m</code>: the nearest "
+                 "tracked object of any class, motion-derived tracks included.</p>"
+                 "<div class='scroll'><table id='scores'><tr><th class='l'>score</th><th>n</th><th>mean</th><th>95 % CI (bootstrap)</th>"
                  "<th>median</th><th>p10</th><th>p90</th><th>min</th><th>max</th></tr>")  # fmt: skip
     for key, s in agg["scores"].items():
         if s["n"] == 0:
             parts.append(
-                f"<tr><td class='l'>{key}</td><td>0</td><td colspan=7 class='l'>unavailable</td></tr>"
+                f"<tr data-score='{key}'><td class='l'>{key}</td><td>0</td>"
+                "<td colspan=7 class='l'>unavailable</td></tr>"
             )
             continue
-        parts.append(f"<tr><td class='l'>{key}</td><td>{s['n']}</td><td>{_fmt(s['mean'])}</td><td>"
+        parts.append(f"<tr data-score='{key}'><td class='l'>{key}</td><td>{s['n']}</td><td>{_fmt(s['mean'])}</td><td>"
                      f"{_fmt(s['mean_ci95'][0])} – {_fmt(s['mean_ci95'][1])}</td><td>{_fmt(s['median'])}</td>"
                      f"<td>{_fmt(s['p10'])}</td><td>{_fmt(s['p90'])}</td><td>{_fmt(s['min'])}</td>"
                      f"<td>{_fmt(s['max'])}</td></tr>")  # fmt: skip
-    parts.append("</table>")
+    parts.append("</table></div>")
     try:
         import matplotlib  # noqa: F401
 
@@ -251,9 +267,9 @@ def render_html(doc: dict[str, Any], out_dir: Path) -> str:
         parts.append(f"<img alt='distributions' src='data:image/png;base64,"
                      f"{figure_distributions(rows, spec.get('criterion'))}'>")  # fmt: skip
     worst = sorted(rows, key=_badness)[:15]
-    parts.append("<h2>Worst trials</h2><table><tr><th>trial</th><th class='l'>end</th><th>success</th>"
-                 "<th>touchdown speed (m/s)</th><th>min dist person (m)</th><th>risk</th><th>time to land (s)</th>"
-                 "<th class='l'>why</th><th class='l'>logs</th></tr>")  # fmt: skip
+    parts.append("<h2>Worst trials</h2><div class='scroll'><table id='worst'><tr><th>trial</th><th class='l'>end</th><th>success</th>"
+                 "<th>touchdown speed (m/s)</th><th>min dist person (m)</th><th>min dist object (m)</th><th>risk</th>"
+                 "<th>time to land (s)</th><th class='l'>why</th><th class='l'>logs</th></tr>")  # fmt: skip
     for r in worst:
         d = f"trials/{int(r['trial']):04d}"
         ok = r.get("success")
@@ -261,7 +277,7 @@ def render_html(doc: dict[str, Any], out_dir: Path) -> str:
         parts.append(
             f"<tr><td>{r['trial']}</td><td class='l'>{_fmt(r['end'])}</td><td class='{cls}'>{_fmt(ok)}</td>"
             f"<td>{_fmt(r['touchdown_speed_m_s'])}</td><td>{_fmt(r['min_dist_person_m'])}</td>"
-            f"<td>{_fmt(r['risk_level'])}</td><td>{_fmt(r['time_to_land_s'])}</td>"
+            f"<td>{_fmt(r.get('min_dist_object_m'))}</td><td>{_fmt(r['risk_level'])}</td><td>{_fmt(r['time_to_land_s'])}</td>"
             f"<td class='l'>{_fmt(r.get('criterion_failures') or r.get('end_detail'))}</td>"
             f"<td class='l'><a href='{d}/trial_trajectory.csv'>trajectory</a> <a href='{d}/events.jsonl'>events</a> "
             f"<a href='{d}/scenario.json'>scenario</a>"
@@ -269,8 +285,53 @@ def render_html(doc: dict[str, Any], out_dir: Path) -> str:
             + (f" <a href='{d}/vac.mp4'>video</a>" if (out_dir / d / "vac.mp4").exists() else "")
             + "</td></tr>"
         )  # fmt: skip
-    parts.append("</table></body></html>")
+    parts.append("</table></div>")
+    parts.extend(_all_trials_table(rows))
+    parts.append("</body></html>")
     return "\n".join(parts)
+
+
+# the per-trial table: the scenario's key, the outcome and every score a benchmark user compares (headers are the
+# results.csv column names; cells are the results.json values unrounded, so both can be matched one to one)
+TRIAL_TABLE_COLUMNS = (
+    "trial", "footage", "end", "landed", "success", "touchdown_speed_m_s", "dist_person_m", "min_dist_person_m",
+    "dist_vehicle_m", "min_dist_vehicle_m", "dist_object_m", "min_dist_object_m", "risk_level", "time_to_land_s",
+    "path_length_m", "energy_wh", "criterion_failures",
+)  # fmt: skip
+_LEFT = {"footage", "end", "criterion_failures"}
+
+
+def _cell(r: Row, key: str) -> str:
+    """One per-trial cell: the exact value; null is "unavailable" when the footage has no ground truth of the
+    kind the score needs, "—" when it has but the score does not apply (no touchdown, nobody of that class)."""
+    v = r.get(key)
+    if v is None:
+        gt = {"risk_level": "gt_risk"}.get(key, "gt_objects" if "dist_" in key else None)
+        return "unavailable" if gt is not None and not r.get(gt) else "—"
+    if isinstance(v, bool):
+        return "yes" if v else "no"
+    if isinstance(v, float):
+        return json.dumps(v) if math.isfinite(v) else "—"
+    return html.escape(str(v))
+
+
+def _all_trials_table(rows: list[Row]) -> list[str]:
+    out = ["<h2>All trials</h2><p>One row per trial (as in <a href='results.csv'>results.csv</a>; units in the "
+           "column names). <i>unavailable</i>: the footage has no ground truth for that score; —: it does not "
+           "apply (no touchdown, nobody of that class in the footage).</p><div class='scroll'><table id='trials'><tr>"
+           + "".join(f"<th{' class=l' if k in _LEFT else ''} data-col='{k}'>{k}</th>" for k in TRIAL_TABLE_COLUMNS)
+           + "</tr>"]  # fmt: skip
+    for r in rows:
+        ok = r.get("success")
+        cells = []
+        for k in TRIAL_TABLE_COLUMNS:
+            c = " class='l'" if k in _LEFT else ""
+            if k == "success" and ok is not None:
+                c = " class='ok'" if ok else " class='bad'"
+            cells.append(f"<td{c}>{_cell(r, k)}</td>")
+        out.append(f"<tr data-trial='{int(r['trial'])}'>" + "".join(cells) + "</tr>")
+    out.append("</table></div>")
+    return out
 
 
 def _badness(r: Row) -> tuple[int, float]:
@@ -289,4 +350,84 @@ def compare_docs(a: dict[str, Any], b: dict[str, Any]) -> dict[str, Any]:
     # campaign: the trials only one side has are counted in unmatched_a / unmatched_b, not compared)
     both = set(sa) & set(sb)
     res["same_scenarios"] = bool(both) and all(sa[k] == sb[k] for k in both)
+    res["per_trial"] = paired_trials(a["rows"], b["rows"])
     return res
+
+
+# the per-pair differences `trials compare` lists (B - A; null when either side lacks the score)
+PAIRED_TRIAL_COLUMNS = (
+    "touchdown_speed_m_s", "dist_person_m", "min_dist_person_m", "dist_vehicle_m", "min_dist_vehicle_m",
+    "dist_object_m", "min_dist_object_m", "risk_level", "time_to_land_s",
+)  # fmt: skip
+
+
+def paired_trials(rows_a: list[Row], rows_b: list[Row]) -> list[Row]:
+    """One entry per pair (trial index and seed in both runs): each side's end, success and scores, and B - A."""
+    a = {(r["trial"], r["seed"]): r for r in rows_a}
+    b = {(r["trial"], r["seed"]): r for r in rows_b}
+    out: list[Row] = []
+    for key in sorted(set(a) & set(b)):
+        ra, rb = a[key], b[key]
+        e: Row = {"trial": key[0], "seed": key[1], "end_a": ra.get("end"), "end_b": rb.get("end"),
+                  "success_a": ra.get("success"), "success_b": rb.get("success")}  # fmt: skip
+        for c in PAIRED_TRIAL_COLUMNS:
+            va, vb = ra.get(c), rb.get(c)
+            e[c + "_a"], e[c + "_b"] = va, vb
+            e[c + "_diff"] = None if va is None or vb is None else round(float(vb) - float(va), 4)
+        out.append(e)
+    return out
+
+
+def render_compare_html(res: dict[str, Any], a_dir: str, b_dir: str) -> str:
+    """`trials compare --html`: the paired statistics and every pair's scores side by side (self-contained)."""
+    pa, pb = html.escape(str(res["a"]["pilot"])), html.escape(str(res["b"]["pilot"]))
+    s = res["success"]
+    parts = [f"<!doctype html><html><head><meta charset='utf-8'><title>viva-sitl trials compare: {pa} vs {pb}"
+             f"</title><style>{_CSS}</style></head><body><h1>Paired comparison: A = <code>{pa}</code>, "
+             f"B = <code>{pb}</code></h1><p>A: <code>{html.escape(a_dir)}</code> (spec "
+             f"<code>{html.escape(str(res['a']['spec']))}</code>, seed {res['a']['seed']}); B: "
+             f"<code>{html.escape(b_dir)}</code> (spec <code>{html.escape(str(res['b']['spec']))}</code>, seed "
+             f"{res['b']['seed']}). {res['pairs']} pairs (same trial index and scenario seed); same scenarios: "
+             f"<b>{res['same_scenarios']}</b>; only in A {res['unmatched_a']}, only in B {res['unmatched_b']} "
+             "(left out).</p>"]  # fmt: skip
+    if not res["same_scenarios"]:
+        parts.append("<p class='bad'>The runs were drawn from different scenarios: the pairs match by trial index "
+                     "and seed only.</p>")  # fmt: skip
+    if s["judged_pairs"]:
+        parts.append(f"<h2>Success</h2><p id='success'>A {100 * s['rate_a']:.1f} %, B {100 * s['rate_b']:.1f} % "
+                     f"over {s['judged_pairs']} judged pairs; B − A {100 * s['diff_b_minus_a']:+.1f} points (95 % CI "
+                     f"{100 * s['diff_ci95'][0]:+.1f} … {100 * s['diff_ci95'][1]:+.1f}, bootstrap); both {s['both']}, "
+                     f"only A {s['only_a']}, only B {s['only_b']}, neither {s['neither']}; McNemar exact p = "
+                     f"{s['mcnemar_p']}.</p>")  # fmt: skip
+    else:
+        parts.append("<h2>Success</h2><p id='success'><b>unavailable</b> (no ground truth)</p>")
+    parts.append("<h2>Scores (paired, B − A)</h2><div class='scroll'><table id='scores'><tr><th class='l'>score</th><th>pairs</th>"
+                 "<th>mean A</th><th>mean B</th><th>mean B − A</th><th>95 % CI (bootstrap)</th></tr>")  # fmt: skip
+    for key, d in res["scores"].items():
+        if not d["pairs"]:
+            parts.append(f"<tr data-score='{key}'><td class='l'>{key}</td><td>0</td>"
+                         "<td colspan=4 class='l'>unavailable</td></tr>")  # fmt: skip
+            continue
+        parts.append(f"<tr data-score='{key}'><td class='l'>{key}</td><td>{d['pairs']}</td>"
+                     f"<td>{_fmt(d['mean_a'])}</td><td>{_fmt(d['mean_b'])}</td><td>{_fmt(d['mean_diff_b_minus_a'])}"
+                     f"</td><td>{_fmt(d['diff_ci95'][0])} – {_fmt(d['diff_ci95'][1])}</td></tr>")  # fmt: skip
+    parts.append("</table></div><h2>Pairs</h2><p>Per pair: A / B / B − A (exact values from the runs' results.json; "
+                 "— = unavailable on either side).</p><div class='scroll'><table id='pairs'><tr><th data-col='trial'>trial</th>"
+                 "<th class='l' data-col='end'>end A / B</th><th data-col='success'>success A / B</th>"
+                 + "".join(f"<th data-col='{c}'>{c}</th>" for c in PAIRED_TRIAL_COLUMNS) + "</tr>")  # fmt: skip
+
+    def v(x: Any) -> str:
+        if x is None:
+            return "—"
+        if isinstance(x, bool):
+            return "yes" if x else "no"
+        return json.dumps(x) if isinstance(x, float | int) else html.escape(str(x))
+
+    for e in res["per_trial"]:
+        cells = [f"<td>{e['trial']}</td>", f"<td class='l'>{v(e['end_a'])} / {v(e['end_b'])}</td>",
+                 f"<td>{v(e['success_a'])} / {v(e['success_b'])}</td>"]  # fmt: skip
+        for c in PAIRED_TRIAL_COLUMNS:
+            cells.append(f"<td>{v(e[c + '_a'])} / {v(e[c + '_b'])} / {v(e[c + '_diff'])}</td>")
+        parts.append(f"<tr data-trial='{e['trial']}'>" + "".join(cells) + "</tr>")
+    parts.append("</table></div></body></html>")
+    return "\n".join(parts)
