@@ -11,7 +11,9 @@ what `viva-sitl trials run SPEC --pilot descend` does); the SAC and random polic
 draws the same scenarios (checked here, scenario by scenario) and whose last info["trial"] is the same score row.
 Per pilot: landed %, success rate under the spec's criterion (landed, touchdown < 1 m/s, >= 5 m from people, risk
 <= 2) with Wilson and bootstrap 95 % CIs, min distance to people over the final descent, risk level at touchdown,
-touchdown speed; paired against descend (McNemar exact p, success difference with bootstrap CI).
+touchdown speed; paired against the --vs baselines (default descend; McNemar exact p, success difference with
+bootstrap CI). `--pilots oracle` flies the trials' ground-truth reference pilot. A --rows file of a larger --n serves a
+smaller one (its first n rows, checked scenario by scenario); `--pilots` with no names only reports it.
 """
 
 from __future__ import annotations
@@ -34,7 +36,7 @@ import train_sb3_landing as example  # noqa: E402
 
 from viva_sitl.evaluation.runner import run_inprocess_trial  # noqa: E402
 from viva_sitl.evaluation.spec import Scenario, TrialSpec, draw_scenarios, load_spec  # noqa: E402
-from viva_sitl.evaluation.stats import aggregate, paired  # noqa: E402
+from viva_sitl.evaluation.stats import aggregate, mcnemar_exact, paired  # noqa: E402
 
 Policy = Callable[[np.ndarray], np.ndarray]
 Row = dict[str, Any]
@@ -147,11 +149,24 @@ def markdown(results: dict[str, Any]) -> str:
     out.append("")
     for base, pairs in results.get("paired", {}).items():
         for name, p in pairs.items():
-            su = p["success"]
+            su, risk = p["success"], p["scores"].get("risk_level", {})
+            dist = p["scores"].get("min_dist_person_m", {})
             out.append(
                 f"- {name} vs {base}, paired over {su['judged_pairs']} scenarios: success {su['rate_b']:.0%} vs "
                 f"{su['rate_a']:.0%}, only {name} {su['only_b']}, only {base} {su['only_a']}, difference "
-                f"{su['diff_b_minus_a']:+.2f} (95 % CI {su['diff_ci95']}), McNemar exact p = {su['mcnemar_p']}"
+                f"{su['diff_b_minus_a']:+.2f} (95 % CI {su['diff_ci95']}), McNemar exact p = "
+                f"{mcnemar_exact(su['only_a'], su['only_b']):.2g}"
+                + (
+                    f"; risk at touchdown {risk['mean_diff_b_minus_a']:+.2f} (95 % CI {risk['diff_ci95']}, "
+                    f"{risk['pairs']} pairs)"
+                    if risk.get("pairs")
+                    else ""
+                )
+                + (
+                    f"; min dist to people {dist['mean_diff_b_minus_a']:+.1f} m (95 % CI {dist['diff_ci95']})"
+                    if dist.get("pairs")
+                    else ""
+                )
             )
     return "\n".join(out) + "\n"
 

@@ -20,6 +20,15 @@ learnable from the state), not how to flare:
     OMP_NUM_THREADS=1 nice -n 10 python examples/train_sb3_landing.py --minutes 14 --action-mode velocity_land \
         --land-xy 0 --gamma 0.98 -o /work/models/sb3_landing_sac_assist_xy0
 
+--ground-truth-obs (the run recorded as the third attempt in bench/results_gym.md) adds the env's PRIVILEGED
+ground-truth observation (LandingEnv(ground_truth_obs=True): the world model's risk levels on a 7 x 7 grid 4 m apart
+under the vehicle, people's buffers included, and the nearest person's offset and distance): what the `oracle` pilot
+knows, not what a camera gives; it measures what a ground-aware landing buys, a perception model must supply it for
+real. Checkpoints every --checkpoint-min; bench_rl.py on another seed picks one:
+
+    OMP_NUM_THREADS=1 nice -n 10 python examples/train_sb3_landing.py --minutes 42 --action-mode velocity_land \
+        --land-xy 0 --gamma 0.98 --ground-truth-obs --net-arch 128 128 --checkpoint-min 5 -o /work/models/rl3/sac_gt
+
 The observation is the env's state vector scaled to O(1) (ScaledState: positions / 50 m, velocities / 5 m/s, angles /
 pi, altitude / 30 m): make_env() builds the exact env the bench evaluates.
 """
