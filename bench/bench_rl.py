@@ -11,7 +11,9 @@ what `viva-sitl trials run SPEC --pilot descend` does); the SAC and random polic
 draws the same scenarios (checked here, scenario by scenario) and whose last info["trial"] is the same score row.
 Per pilot: landed %, success rate under the spec's criterion (landed, touchdown < 1 m/s, >= 5 m from people, risk
 <= 2) with Wilson and bootstrap 95 % CIs, min distance to people over the final descent, risk level at touchdown,
-touchdown speed; paired against descend (McNemar exact p, success difference with bootstrap CI).
+touchdown speed; paired against the --vs baselines (default descend; McNemar exact p, success difference with
+bootstrap CI). `--pilots oracle` flies the trials' ground-truth reference pilot. A --rows file of a larger --n serves a
+smaller one (its first n rows, checked scenario by scenario); `--pilots` with no names only reports it.
 """
 
 from __future__ import annotations
@@ -34,7 +36,7 @@ import train_sb3_landing as example  # noqa: E402
 
 from viva_sitl.evaluation.runner import run_inprocess_trial  # noqa: E402
 from viva_sitl.evaluation.spec import Scenario, TrialSpec, draw_scenarios, load_spec  # noqa: E402
-from viva_sitl.evaluation.stats import aggregate, paired  # noqa: E402
+from viva_sitl.evaluation.stats import aggregate, mcnemar_exact, paired  # noqa: E402
 
 Policy = Callable[[np.ndarray], np.ndarray]
 Row = dict[str, Any]
@@ -145,13 +147,27 @@ def markdown(results: dict[str, Any]) -> str:
             f"{', '.join(f'{k} {v}' for k, v in s['ends'].items())} | {s['wall_s']} |"
         )
     out.append("")
-    for name, p in results.get("paired_vs_descend", {}).items():
-        su = p["success"]
-        out.append(
-            f"- {name} vs descend, paired over {su['judged_pairs']} scenarios: success {su['rate_b']:.0%} vs "
-            f"{su['rate_a']:.0%}, only {name} {su['only_b']}, only descend {su['only_a']}, difference "
-            f"{su['diff_b_minus_a']:+.2f} (95 % CI {su['diff_ci95']}), McNemar exact p = {su['mcnemar_p']}"
-        )
+    for base, pairs in results.get("paired", {}).items():
+        for name, p in pairs.items():
+            su, risk = p["success"], p["scores"].get("risk_level", {})
+            dist = p["scores"].get("min_dist_person_m", {})
+            out.append(
+                f"- {name} vs {base}, paired over {su['judged_pairs']} scenarios: success {su['rate_b']:.0%} vs "
+                f"{su['rate_a']:.0%}, only {name} {su['only_b']}, only {base} {su['only_a']}, difference "
+                f"{su['diff_b_minus_a']:+.2f} (95 % CI {su['diff_ci95']}), McNemar exact p = "
+                f"{mcnemar_exact(su['only_a'], su['only_b']):.2g}"
+                + (
+                    f"; risk at touchdown {risk['mean_diff_b_minus_a']:+.2f} (95 % CI {risk['diff_ci95']}, "
+                    f"{risk['pairs']} pairs)"
+                    if risk.get("pairs")
+                    else ""
+                )
+                + (
+                    f"; min dist to people {dist['mean_diff_b_minus_a']:+.1f} m (95 % CI {dist['diff_ci95']})"
+                    if dist.get("pairs")
+                    else ""
+                )
+            )
     return "\n".join(out) + "\n"
 
 
@@ -161,7 +177,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument(
         "--model", type=Path, help="a saved SB3 SAC policy (.zip); the random pilot flies its env too"
     )
-    ap.add_argument("--pilots", nargs="+", default=["sac", "random", "descend"])
+    ap.add_argument("--pilots", nargs="*", default=["sac", "random", "descend"],
+                    help="pilots to fly (none: report the --rows file); descend and oracle: the trials runner")  # fmt: skip
     ap.add_argument("--name", default="sac", help="the row name of the sac pilot (default %(default)s)")
     ap.add_argument(
         "--random-name", default="random", help="the row name of the random pilot (default %(default)s)"
@@ -172,6 +189,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seed", type=int, help="scenario seed (default: the spec's)")
     ap.add_argument("--rows", type=Path, help="write/merge every pilot's rows here (JSON)")
     ap.add_argument("--markdown", type=Path)
+    ap.add_argument("--vs", nargs="+", default=["descend"],
+                    help="pair every other pilot with these baselines (default %(default)s)")  # fmt: skip
+    ap.add_argument("--only", nargs="+", help="report only these pilots of the --rows file (default: all)")
     args = ap.parse_args(argv)
     spec = load_spec(args.spec)
     seed = spec.seed if args.seed is None else args.seed
@@ -215,12 +235,18 @@ def main(argv: list[str] | None = None) -> int:
         )
     crit = spec.criterion.describe()
     results: dict[str, Any] = {"spec": args.spec, "seed": seed, "n": args.n, "criterion": crit, "pilots": {}}
-    for name, r in rows.items():
+    shown = {k: v for k, v in rows.items() if args.only is None or k in args.only}
+    for name, r in list(shown.items()):
+        # a --rows file of a larger --n holds these n scenarios first (a scenario is a pure function of seed, index)
+        r = shown[name] = r[: args.n]
+        if [(row["trial"], row["seed"]) for row in r] != [(sc.index, sc.seed) for sc in scenarios]:
+            raise SystemExit(f"{name}: its rows in {args.rows} are not trials 0..{args.n - 1} of seed {seed}")
         results["pilots"][name] = {**summary(r, crit), "wall_s": walls.get(name)}
-    if "descend" in rows:
-        results["paired_vs_descend"] = {
-            name: paired(rows["descend"], r) for name, r in rows.items() if name != "descend"
-        }
+    results["paired"] = {
+        base: {name: paired(shown[base], r) for name, r in shown.items() if name != base}
+        for base in args.vs
+        if base in shown
+    }
     print(json.dumps(results, indent=1))
     md = markdown(results)
     print(md)

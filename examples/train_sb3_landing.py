@@ -20,6 +20,15 @@ learnable from the state), not how to flare:
     OMP_NUM_THREADS=1 nice -n 10 python examples/train_sb3_landing.py --minutes 14 --action-mode velocity_land \
         --land-xy 0 --gamma 0.98 -o /work/models/sb3_landing_sac_assist_xy0
 
+--ground-truth-obs (the run recorded as the third attempt in bench/results_gym.md) adds the env's PRIVILEGED
+ground-truth observation (LandingEnv(ground_truth_obs=True): the world model's risk levels on a 7 x 7 grid 4 m apart
+under the vehicle, people's buffers included, and the nearest person's offset and distance): what the `oracle` pilot
+knows, not what a camera gives; it measures what a ground-aware landing buys, a perception model must supply it for
+real. Checkpoints every --checkpoint-min; bench_rl.py on another seed picks one:
+
+    OMP_NUM_THREADS=1 nice -n 10 python examples/train_sb3_landing.py --minutes 42 --action-mode velocity_land \
+        --land-xy 0 --gamma 0.98 --ground-truth-obs --net-arch 128 128 --checkpoint-min 5 -o /work/models/rl3/sac_gt
+
 The observation is the env's state vector scaled to O(1) (ScaledState: positions / 50 m, velocities / 5 m/s, angles /
 pi, altitude / 30 m): make_env() builds the exact env the bench evaluates.
 """
@@ -47,15 +56,31 @@ ENV_KWARGS: dict[str, Any] = {"control_hz": 2.0, "max_speed_m_s": 5.0, "max_vspe
 STATE_SCALE = np.array([50, 50, 30, 5, 5, 5, math.pi, math.pi, math.pi, 30], np.float32)
 
 
+# --ground-truth-obs (PRIVILEGED, the env's ground_truth_obs): risk levels 1..5 / 5, the nearest person's offset and
+# distance / 10 m
+RISK_SCALE, PERSON_SCALE_M = 5.0, 10.0
+
+
+def observation_scale(env: gym.Env[Any, Any]) -> NDArray[np.float32]:
+    """The fixed scales of the env's state vector (STATE_SCALE, then the privileged ground-truth fields if on)."""
+    n_extra = int(env.observation_space.shape[0]) - len(STATE_SCALE)  # type: ignore[index]
+    if n_extra == 0:
+        return STATE_SCALE
+    extra = np.full(n_extra, RISK_SCALE, np.float32)
+    extra[-3:] = PERSON_SCALE_M
+    return np.concatenate([STATE_SCALE, extra])
+
+
 class ScaledState(gym.ObservationWrapper[NDArray[np.float32], NDArray[np.float32], NDArray[np.float32]]):
     """The state vector divided by fixed scales (no running statistics: the saved policy needs nothing else)."""
 
     def __init__(self, env: gym.Env[NDArray[np.float32], NDArray[np.float32]]) -> None:
         super().__init__(env)
-        self.observation_space = gym.spaces.Box(-np.inf, np.inf, shape=STATE_SCALE.shape, dtype=np.float32)
+        self.scale = observation_scale(env)
+        self.observation_space = gym.spaces.Box(-np.inf, np.inf, shape=self.scale.shape, dtype=np.float32)
 
     def observation(self, observation: NDArray[np.float32]) -> NDArray[np.float32]:
-        return (observation / STATE_SCALE).astype(np.float32)
+        return (observation / self.scale).astype(np.float32)
 
 
 def make_env(
@@ -90,9 +115,12 @@ def train(
     physics_hz: float | None = 100.0,
     env_kwargs: dict[str, Any] | None = None,
     gamma: float = 0.95,
+    net_arch: tuple[int, ...] = (64, 64),
+    checkpoint_every_s: float | None = None,
 ) -> dict[str, Any]:
     """Train SAC until total_steps or `minutes` of wall time; save out.zip (the policy) and out.json (how it was
-    trained: steps, wall time, env steps/s, episodes, success rate over the last 100 episodes)."""
+    trained: steps, wall time, env steps/s, episodes, success rate over the last 100 episodes). checkpoint_every_s:
+    also save out_<steps>.zip/.json every that many wall seconds (pick one with bench_rl.py --select)."""
     import torch
     from stable_baselines3 import SAC
     from stable_baselines3.common.callbacks import BaseCallback
@@ -106,17 +134,36 @@ def train(
     env.reset(seed=train_seed)  # training flies trials train_seed/0, 1, 2, ... (SB3 resets without a seed)
     model = SAC(
         "MlpPolicy", env, learning_rate=3e-4, buffer_size=200_000, learning_starts=learning_starts,
-        batch_size=128, gamma=gamma, train_freq=1, gradient_steps=1, policy_kwargs={"net_arch": [64, 64]},
+        batch_size=128, gamma=gamma, train_freq=1, gradient_steps=1, policy_kwargs={"net_arch": list(net_arch)},
         device="cpu", verbose=0,
     )  # fmt: skip
     deadline = time.perf_counter() + minutes * 60.0
     stats: dict[str, Any] = {"episodes": 0, "outcomes": [], "returns": []}
+
+    def meta(wall: float) -> dict[str, Any]:
+        last = stats["outcomes"][-100:]
+        return {
+            "algo": "SAC", "gamma": gamma, "net_arch": list(net_arch), "env_id": ENV_ID, "env_kwargs": env_kwargs,
+            "spec": str(spec), "train_seed": train_seed, "physics_hz": physics_hz, "steps": int(model.num_timesteps),
+            "wall_s": round(wall, 1), "steps_per_s": round(model.num_timesteps / max(wall, 1e-9), 1),
+            "episodes": stats["episodes"],
+            "landed_last100": round(sum(e == "landed" for e, _ in last) / max(1, len(last)), 3),
+            "success_last100": round(sum(s for _, s in last) / max(1, len(last)), 3),
+        }  # fmt: skip
+
+    def save(path: Path, wall: float) -> dict[str, Any]:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        model.save(str(path))
+        m = meta(wall)
+        Path(str(path) + ".json").write_text(json.dumps(m, indent=1))
+        return m
 
     class Progress(BaseCallback):
         def __init__(self) -> None:
             super().__init__()
             self.t0 = time.perf_counter()
             self.next_log = self.t0 + log_every_s
+            self.next_ckpt = self.t0 + (math.inf if checkpoint_every_s is None else checkpoint_every_s)
             self.ret = 0.0
 
         def _on_step(self) -> bool:
@@ -139,24 +186,16 @@ def train(
                     "success_last100": round(sum(s for _, s in last) / max(1, len(last)), 3),
                     "return_last100": round(float(np.mean(stats["returns"][-100:] or [0.0])), 2),
                 }), flush=True)  # fmt: skip
+            if now >= self.next_ckpt:
+                self.next_ckpt = now + (math.inf if checkpoint_every_s is None else checkpoint_every_s)
+                save(out.with_name(f"{out.name}_{self.num_timesteps}"), now - self.t0)
             return now < deadline
 
     t0 = time.perf_counter()
     model.learn(total_timesteps=total_steps, callback=Progress())
-    wall = time.perf_counter() - t0
-    out.parent.mkdir(parents=True, exist_ok=True)
-    model.save(str(out))
-    last = stats["outcomes"][-100:]
-    meta = {
-        "algo": "SAC", "gamma": gamma, "env_id": ENV_ID, "env_kwargs": env_kwargs, "spec": str(spec), "train_seed": train_seed,
-        "physics_hz": physics_hz, "steps": int(model.num_timesteps), "wall_s": round(wall, 1),
-        "steps_per_s": round(model.num_timesteps / wall, 1), "episodes": stats["episodes"],
-        "landed_last100": round(sum(e == "landed" for e, _ in last) / max(1, len(last)), 3),
-        "success_last100": round(sum(s for _, s in last) / max(1, len(last)), 3),
-    }  # fmt: skip
-    Path(str(out) + ".json").write_text(json.dumps(meta, indent=1))
+    final = save(out, time.perf_counter() - t0)
     env.close()
-    return meta
+    return final
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -179,13 +218,23 @@ def main(argv: list[str] | None = None) -> int:
         default=0.0,
         help="velocity_land: m/s below MPC_LAND_ALT2 (0: hold, as PX4 Land)",
     )
+    ap.add_argument("--ground-truth-obs", action="store_true",
+                    help="PRIVILEGED: append the env's ground-truth risk grid + nearest-person vector to the state "
+                    "(LandingEnv ground_truth_obs; what the oracle pilot knows, not a sensor)")  # fmt: skip
+    ap.add_argument(
+        "--net-arch", type=int, nargs="+", default=[64, 64], help="hidden layers (default %(default)s)"
+    )
+    ap.add_argument("--checkpoint-min", type=float, help="also save out_<steps> every that many minutes")
     args = ap.parse_args(argv)
     kw = {**ENV_KWARGS, "max_speed_m_s": args.max_speed, "max_vspeed_m_s": args.max_vspeed}
     if args.action_mode != "velocity":
         kw.update(action_mode=args.action_mode, land_xy_m_s=args.land_xy)
+    if args.ground_truth_obs:
+        kw["ground_truth_obs"] = True
+    ckpt = None if args.checkpoint_min is None else args.checkpoint_min * 60.0
     meta = train(
         args.out, total_steps=args.steps, minutes=args.minutes, spec=args.spec, train_seed=args.train_seed,
-        env_kwargs=kw, gamma=args.gamma,
+        env_kwargs=kw, gamma=args.gamma, net_arch=tuple(args.net_arch), checkpoint_every_s=ckpt,
     )  # fmt: skip
     print(json.dumps(meta))
     return 0

@@ -18,6 +18,7 @@ gym = pytest.importorskip("gymnasium")
 from gymnasium.utils.env_checker import check_env  # noqa: E402
 
 import viva_sitl.gym  # noqa: E402,F401  (registers the ids)
+import viva_sitl.world  # noqa: E402
 from viva_sitl.autopilot import FlightMode, PositionTarget  # noqa: E402
 from viva_sitl.config import SimConfig  # noqa: E402
 from viva_sitl.dynamics import EavParams  # noqa: E402
@@ -426,3 +427,50 @@ def test_landing_assist_limits_sink_and_horizontal_speed_near_the_ground() -> No
     env.reset(seed=0, options=level_start(alt_m=2.0))
     assert env.assisted_velocity((0.0, 0.0, -3.0)) == (0.0, 0.0, -3.0)
     assert env.assisted_velocity((3.0, 4.0, 2.0)) == (0.0, 0.0, pytest.approx(0.7))
+
+
+def test_privileged_ground_truth_observation_is_the_world_models() -> None:
+    """ground_truth_obs=True (off by default) appends the world model's risk grid and the nearest person to the state:
+    check_env passes, and right above a person the values are the world model's (risk_at per cell, the person's
+    offset from tracks.nearest, level 5 under the vehicle); the plain state observation stays 10 numbers."""
+    plain = LandingEnv("synthetic", observation="state", action_mode="velocity_land")
+    assert plain.observation_space.shape == (10,)
+    env = LandingEnv(
+        "synthetic", observation="state", action_mode="velocity_land", ground_truth_obs=True, ground_grid=5,
+        ground_cell_m=3.0, people_range_m=25.0,
+    )  # fmt: skip
+    assert env.observation_space.shape == (10 + 25 + 3,) and len(env.state_fields) == 38
+    assert env.state_fields[10] == "risk_0_0" and env.state_fields[-1] == "person_dist_m"
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # unbounded Box: the checker warns
+        check_env(env)
+    world = env.world
+    t = 12.0
+    person = world.tracks.objects_at(t, viva_sitl.world.PEOPLE)
+    assert len(person) > 0
+    pn, pe = (float(v) for v in person.ne_m[0])
+    obs, _ = env.reset(seed=0, options={"scenario": Scenario.air(pn + 1.0, pe - 2.0, 20.0, footage_time_s=t)})
+    assert obs in env.observation_space and env.footage_time_s == pytest.approx(t)
+    n, e = float(obs[0]), float(obs[1])
+    assert (n, e) == pytest.approx((pn + 1.0, pe - 2.0), abs=1e-4)
+    grid = obs[10:35].reshape(5, 5)
+    for i in range(5):
+        for j in range(5):
+            assert grid[i, j] == world.risk_at(n + (i - 2) * 3.0, e + (j - 2) * 3.0, t), (i, j)
+    assert grid[2, 2] == 5  # 2.2 m from a person: inside its level-5 buffer
+    near = world.tracks.nearest(n, e, t, viva_sitl.world.PEOPLE)
+    assert near is not None and near.distance_m <= math.hypot(1.0, 2.0) + 1e-6
+    assert obs[35:] == pytest.approx([near.ne_m[0] - n, near.ne_m[1] - e, near.distance_m], abs=1e-4)
+    # far from everyone the person fields are clamped to people_range_m, direction kept
+    far = env.ground_truth(n + 500.0, e, t)
+    assert far[-1] == pytest.approx(25.0) and math.hypot(float(far[-3]), float(far[-2])) == pytest.approx(
+        25.0
+    )
+    obs2, *_ = env.step(np.zeros(4, np.float32))  # updated every step (the obs position is float32: approx)
+    s = env.vehicle.state
+    want = env.ground_truth(float(s.pos_ned_m[0]), float(s.pos_ned_m[1]), env.footage_time_s)
+    assert obs2[10:] == pytest.approx(want, abs=1e-4)
+    with pytest.raises(ValueError, match="ground_grid"):
+        LandingEnv("synthetic", observation="state", ground_truth_obs=True, ground_grid=0)
+    env.close()
+    plain.close()

@@ -22,7 +22,7 @@ try:
 except ImportError as exc:  # pragma: no cover - depends on the install
     raise ImportError("viva_sitl.gym needs gymnasium: pip install 'viva-sitl[gym]'") from exc
 
-from viva_sitl.gym.env import STATE_FIELDS, LandingEnv, land_assist_limits, overview_rgb
+from viva_sitl.gym.env import STATE_FIELDS, LandingEnv, ground_truth_fields, land_assist_limits, overview_rgb
 from viva_sitl.gym.scenario import Scenario, ScenarioDrawer, SpecScenarioDrawer, TrialSpec, default_spec
 from viva_sitl.gym.scoring import LandingReward, RewardConfig, Scorer, StepScore
 from viva_sitl.gym.vector import SharedFootageVectorEnv
@@ -56,6 +56,7 @@ __all__ = [
     "StepScore",
     "TrialSpec",
     "default_spec",
+    "ground_truth_fields",
     "land_assist_limits",
     "overview_rgb",
 ]

@@ -32,6 +32,14 @@ Observation (`observation`): "image+state" -> Dict(image, state); "state" -> the
 image: the VAC view, `image_size` (w, h), RGB (or grayscale HxWx1), `frame_stack` k > 1 concatenates the last k
 views along the channel axis (oldest first). state (float32): north, east, down (m), v_north, v_east, v_down (m/s),
 roll, pitch, yaw (rad), altitude above ground (m).
+PRIVILEGED ground truth (`ground_truth_obs=True`, off by default; like the oracle pilot, NOT something a real vehicle's
+sensors give): the state vector is extended by ground_truth_fields(ground_grid): the world model's risk level
+(1..5, WorldModel.risk_levels_at: the ground's, raised near people and cars) at a ground_grid x ground_grid grid of
+points ground_cell_m apart centred under the vehicle, NED axes (row-major, north first: risk[i][j] at north offset
+(i - (g-1)/2) x cell, east offset (j - (g-1)/2) x cell), then the nearest person's north, east offset and distance
+(m, centres; clamped to people_range_m along the same direction, distance people_range_m when nobody is nearer),
+all at the footage time the scorer judges. For policies that should learn what ground-aware landing buys before a
+perception model provides it (bench/results_gym.md); a non-privileged policy uses the image.
 
 Scenarios (viva_sitl.gym.scenario): the landing trials' (`spec=` a trials TOML or TrialSpec): reset(seed=s) flies
 the scenario `viva-sitl trials run SPEC --seed s` flies as trial 0, each reset() without a seed the next trial
@@ -81,12 +89,20 @@ from viva_sitl.gym.scenario import (
 )
 from viva_sitl.gym.scoring import LandingReward, RewardConfig, Scorer
 from viva_sitl.vehicle import Vehicle
-from viva_sitl.world import WorldModel, world_from_source
+from viva_sitl.world import PEOPLE, WorldModel, world_from_source
 
 ACTION_MODES = ("attitude", "velocity", "velocity_land")
 OBSERVATIONS = ("image+state", "state")
 STATE_FIELDS = ("north_m", "east_m", "down_m", "v_north_m_s", "v_east_m_s", "v_down_m_s",
                 "roll_rad", "pitch_rad", "yaw_rad", "alt_agl_m")  # fmt: skip
+
+
+def ground_truth_fields(grid: int) -> tuple[str, ...]:
+    """Names of the PRIVILEGED fields `ground_truth_obs=True` appends to the state vector (risk grid row-major from
+    the north-west corner, then the nearest person's offset and distance)."""
+    return tuple(f"risk_{i}_{j}" for i in range(grid) for j in range(grid)) + (
+        "person_north_m", "person_east_m", "person_dist_m",
+    )  # fmt: skip
 
 
 class LandingEnv(gym.Env[Any, NDArray[np.float32]]):
@@ -116,6 +132,10 @@ class LandingEnv(gym.Env[Any, NDArray[np.float32]]):
         max_speed_m_s: float = 5.0,
         max_vspeed_m_s: float = 3.0,
         land_xy_m_s: float = 0.0,
+        ground_truth_obs: bool = False,
+        ground_grid: int = 7,
+        ground_cell_m: float = 4.0,
+        people_range_m: float = 30.0,
         out_of_range: str = "clip",
         render_mode: str | None = None,
         overview_px: int = 800,
@@ -139,6 +159,13 @@ class LandingEnv(gym.Env[Any, NDArray[np.float32]]):
             raise ValueError("control_hz and max_episode_s must be positive")
         if not (land_xy_m_s >= 0.0 and math.isfinite(land_xy_m_s)):
             raise ValueError(f"land_xy_m_s must be a finite speed >= 0, got {land_xy_m_s!r}")
+        if ground_truth_obs and not (
+            isinstance(ground_grid, int) and ground_grid >= 1 and ground_cell_m > 0.0 and people_range_m > 0.0
+        ):
+            raise ValueError(
+                "ground_grid must be an integer >= 1, ground_cell_m and people_range_m positive, got "
+                f"{ground_grid!r}, {ground_cell_m!r}, {people_range_m!r}"
+            )
         trial_spec = resolve_spec(spec) if spec is not None else None
         if footage is None:
             footage = trial_spec.footage[0] if trial_spec is not None else "synthetic"
@@ -158,6 +185,15 @@ class LandingEnv(gym.Env[Any, NDArray[np.float32]]):
         self.max_yaw_rate_rad_s = math.radians(max_yaw_rate_deg_s)
         self.max_speed_m_s, self.max_vspeed_m_s = float(max_speed_m_s), float(max_vspeed_m_s)
         self.land_xy_m_s = float(land_xy_m_s)
+        self.ground_truth_obs = bool(ground_truth_obs)
+        self.ground_grid, self.ground_cell_m = int(ground_grid), float(ground_cell_m)
+        self.people_range_m = float(people_range_m)
+        half = (self.ground_grid - 1) / 2.0
+        idx = (np.arange(self.ground_grid, dtype=np.float64) - half) * self.ground_cell_m
+        self._grid_dn_m, self._grid_de_m = (a.ravel() for a in np.meshgrid(idx, idx, indexing="ij"))
+        self.state_fields = STATE_FIELDS + (
+            ground_truth_fields(self.ground_grid) if self.ground_truth_obs else ()
+        )
         self.metadata = {**self.metadata, "render_fps": self.control_hz}
 
         base = config or SimConfig()
@@ -187,7 +223,7 @@ class LandingEnv(gym.Env[Any, NDArray[np.float32]]):
         self.rate_hz = 1.0 / self.vehicle.dt_s
 
         self.action_space = spaces.Box(-1.0, 1.0, shape=(4,), dtype=np.float32)
-        state_space = spaces.Box(-np.inf, np.inf, shape=(len(STATE_FIELDS),), dtype=np.float32)
+        state_space = spaces.Box(-np.inf, np.inf, shape=(len(self.state_fields),), dtype=np.float32)
         c = (1 if grayscale else 3) * self.frame_stack
         image_space = spaces.Box(0, 255, shape=(h, w, c), dtype=np.uint8)
         self.observation_space: spaces.Space[Any] = (
@@ -235,8 +271,30 @@ class LandingEnv(gym.Env[Any, NDArray[np.float32]]):
         v = s.vel_ned_m_s
         p = s.pos_ned_m
         ground = self.vehicle.sim.params.ground_z_ned_m
-        return np.array([p[0], p[1], p[2], v[0], v[1], v[2], s.roll_rad, s.pitch_rad, s.yaw_rad, ground - p[2]],
-                        dtype=np.float32)  # fmt: skip
+        vec = np.array([p[0], p[1], p[2], v[0], v[1], v[2], s.roll_rad, s.pitch_rad, s.yaw_rad, ground - p[2]],
+                       dtype=np.float32)  # fmt: skip
+        if not self.ground_truth_obs:
+            return vec
+        return np.concatenate([vec, self.ground_truth(float(p[0]), float(p[1]), self.footage_time_s)])
+
+    def ground_truth(self, north_m: float, east_m: float, footage_time_s: float) -> NDArray[np.float32]:
+        """The PRIVILEGED ground-truth fields (ground_truth_fields) at a point and footage time, from the world
+        model: the risk grid around (north, east), then the nearest person's offset and distance (clamped to
+        people_range_m)."""
+        risk = self.world.risk_levels_at(north_m + self._grid_dn_m, east_m + self._grid_de_m, footage_time_s)
+        near = (
+            self.world.tracks.nearest(north_m, east_m, footage_time_s, PEOPLE)
+            if self.world.has_objects
+            else None
+        )
+        r = self.people_range_m
+        if near is None:
+            person = (0.0, 0.0, r)
+        else:
+            dn, de, d = near.ne_m[0] - north_m, near.ne_m[1] - east_m, near.distance_m
+            f = min(1.0, r / d) if d > 0.0 else 1.0
+            person = (dn * f, de * f, min(d, r))
+        return np.concatenate([risk.astype(np.float32), np.array(person, np.float32)])
 
     def view(self) -> NDArray[np.uint8]:
         """The VAC image as observed (RGB or grayscale HxWx1), one view (no stacking)."""
@@ -493,4 +551,12 @@ def overview_rgb(env: LandingEnv, max_px: int) -> NDArray[np.uint8]:
     return np.ascontiguousarray(img[:, :, ::-1])
 
 
-__all__ = ["ACTION_MODES", "OBSERVATIONS", "STATE_FIELDS", "LandingEnv", "land_assist_limits", "overview_rgb"]
+__all__ = [
+    "ACTION_MODES",
+    "OBSERVATIONS",
+    "STATE_FIELDS",
+    "LandingEnv",
+    "ground_truth_fields",
+    "land_assist_limits",
+    "overview_rgb",
+]
