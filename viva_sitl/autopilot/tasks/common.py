@@ -72,6 +72,16 @@ def idle(ctx: FlightContext) -> EavCommand:
     return EavCommand(0.0, 0.0, ctx.yaw_sp, 0.0)
 
 
+def _airframe(ctx: FlightContext, eav: EavParams) -> Airframe:
+    """What the controller knows of `eav` (the same object while the airframe is unchanged: this runs at 250 Hz)."""
+    cached = ctx._airframe_cache
+    if cached is not None and cached[0] is eav:
+        return cached[1]
+    air = Airframe(mass_kg=eav.mass_kg, drag_kd_n_s_m=eav.drag_kd_n_s_m, gravity_m_s2=eav.gravity_m_s2)
+    ctx._airframe_cache = (eav, air)
+    return air
+
+
 def run_position(
     ctx: FlightContext, dt: float, state: EavState, sp: TrajectorySetpoint, lim: Limits, eav: EavParams,
     yaw_target: float | None, yaw_rate_max: float,
@@ -80,15 +90,13 @@ def run_position(
     if yaw_target is not None and math.isfinite(yaw_target):
         ctx.yaw_sp = slew_yaw(ctx.yaw_sp, yaw_target, yaw_rate_max, dt)
     on_ground = bool(state.landed)
-    out: AttitudeThrust = ctx.ctrl.update(
-        dt,
-        np.asarray(state.pos_ned_m, dtype=np.float64),
-        np.asarray(state.vel_ned_m_s, dtype=np.float64),
-        sp,
-        ctx.yaw_sp,
-        lim,
-        Airframe(mass_kg=eav.mass_kg, drag_kd_n_s_m=eav.drag_kd_n_s_m, gravity_m_s2=eav.gravity_m_s2),
-        integrate=not on_ground,
+    # floats, not 3-vectors: the same IEEE operations, in the same order, as state.vel_ned_m_s
+    p = state.pos_ned_m.tolist()
+    q = state.prev_pos_ned_m.tolist()
+    sdt = state.dt_s
+    vel = ((p[0] - q[0]) / sdt, (p[1] - q[1]) / sdt, (p[2] - q[2]) / sdt)
+    out: AttitudeThrust = ctx.ctrl.update_xyz(
+        dt, p[0], p[1], p[2], vel, sp, ctx.yaw_sp, lim, _airframe(ctx, eav), integrate=not on_ground
     )
     if on_ground:
         # On the ground: idle unless the controller asks for more than hover (take-off); no tilting.
