@@ -119,6 +119,11 @@ def _scenarios() -> dict[str, Callable[[], dict[str, Any]]]:
             r.out(v.autopilot.reposition(v.time_s, 10.0, 5.0, -15.0, 1.0, speed_m_s=3.0))
             r.step(250 * 8)
             r.step(250 * 4, chunk=250)
+            v.params.set("NAV_DLL_ACT", 2)  # ground-station link lost -> Return
+            for _ in range(20):
+                v.autopilot.gcs_heartbeat(v.time_s)
+                r.step(250)
+            r.step(250 * 10)
             return r.result()
 
     def offboard() -> dict[str, Any]:

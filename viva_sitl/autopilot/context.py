@@ -15,7 +15,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from viva_sitl.autopilot.battery import Battery, BatteryConfig
-from viva_sitl.autopilot.control import Airframe, Gains, PositionController
+from viva_sitl.autopilot.control import Airframe, Gains, PositionController, TrajectorySetpoint
 from viva_sitl.autopilot.geofence import Geofence, RallyPoint
 from viva_sitl.autopilot.params import SIM_EAV_PARAMS, ParamStore
 from viva_sitl.autopilot.types import Event, FlightMode, Severity
@@ -57,6 +57,8 @@ class FlightContext:
     # tasks/common.limits' last (key, airframe, Limits): it runs at 250 Hz
     _limits_cache: tuple[object, EavParams, object] | None = field(default=None, repr=False, compare=False)
     _airframe_cache: tuple[EavParams, Airframe] | None = field(default=None, repr=False, compare=False)
+    # tasks/common.goto's last (target bytes, TrajectorySetpoint)
+    _goto_cache: tuple[bytes, TrajectorySetpoint] | None = field(default=None, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         self.home = np.array([0.0, 0.0, float(self.base_eav.ground_z_ned_m)])

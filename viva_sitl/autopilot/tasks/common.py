@@ -111,5 +111,12 @@ def run_position(
 def goto(ctx: FlightContext, dt: float, state: EavState, eav: EavParams, target: np.ndarray,
          yaw_target: float | None = None, yaw_rate_max: float = 0.0) -> EavCommand:  # fmt: skip
     """Fly to a NED position with the auto limits."""
-    sp = TrajectorySetpoint(pos_ned_m=(float(target[0]), float(target[1]), float(target[2])))
+    # the same setpoint object while the target's bits are unchanged (a hold target stays put for thousands of steps)
+    key = target.tobytes() if isinstance(target, np.ndarray) and target.dtype.char == "d" else None
+    cached = ctx._goto_cache
+    if key is not None and cached is not None and cached[0] == key:
+        sp = cached[1]
+    else:
+        sp = TrajectorySetpoint(pos_ned_m=(float(target[0]), float(target[1]), float(target[2])))
+        ctx._goto_cache = (key, sp) if key is not None else None
     return run_position(ctx, dt, state, sp, auto_limits(ctx), eav, yaw_target, yaw_rate_max)
