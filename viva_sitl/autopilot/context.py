@@ -57,8 +57,10 @@ class FlightContext:
     # tasks/common.limits' last (key, airframe, Limits): it runs at 250 Hz
     _limits_cache: tuple[object, EavParams, object] | None = field(default=None, repr=False, compare=False)
     _airframe_cache: tuple[EavParams, Airframe] | None = field(default=None, repr=False, compare=False)
-    # tasks/common.goto's last (target bytes, TrajectorySetpoint)
-    _goto_cache: tuple[bytes, TrajectorySetpoint] | None = field(default=None, repr=False, compare=False)
+    # tasks/common.position_setpoint / descent_setpoint: kind -> (the inputs' bits, TrajectorySetpoint)
+    _sp_cache: dict[str, tuple[bytes, TrajectorySetpoint]] = field(
+        default_factory=dict, repr=False, compare=False
+    )
 
     def __post_init__(self) -> None:
         self.home = np.array([0.0, 0.0, float(self.base_eav.ground_z_ned_m)])

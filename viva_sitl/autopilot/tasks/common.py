@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import math
+import struct
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -108,15 +110,39 @@ def run_position(
     return EavCommand(out.roll_rad, out.pitch_rad, out.yaw_rad, out.thrust_n)
 
 
+_PACK3 = struct.Struct(
+    "=3d"
+).pack  # three doubles' bits: a cache key that tells -0.0 from 0.0 (and NaN never hits)
+
+
+def position_setpoint(ctx: FlightContext, target: Sequence[float] | np.ndarray) -> TrajectorySetpoint:
+    """TrajectorySetpoint(pos_ned_m=target as floats); the same object while the target's bits are unchanged (a
+    hold target or a waypoint stays put for thousands of 250 Hz steps)."""
+    x, y, z = target.tolist() if isinstance(target, np.ndarray) else target
+    key = _PACK3(x, y, z)
+    cached = ctx._sp_cache.get("pos")
+    if cached is not None and cached[0] == key:
+        return cached[1]
+    sp = TrajectorySetpoint(pos_ned_m=(float(x), float(y), float(z)))
+    ctx._sp_cache["pos"] = (key, sp)
+    return sp
+
+
+def descent_setpoint(
+    ctx: FlightContext, north_m: float, east_m: float, vel_down_m_s: float
+) -> TrajectorySetpoint:
+    """TrajectorySetpoint(pos_ned_m=(north, east, NaN), vel_ned_m_s=(NaN, NaN, v)), cached as position_setpoint."""
+    key = _PACK3(north_m, east_m, vel_down_m_s)
+    cached = ctx._sp_cache.get("descent")
+    if cached is not None and cached[0] == key:
+        return cached[1]
+    sp = TrajectorySetpoint(pos_ned_m=(north_m, east_m, NAN), vel_ned_m_s=(NAN, NAN, vel_down_m_s))
+    ctx._sp_cache["descent"] = (key, sp)
+    return sp
+
+
 def goto(ctx: FlightContext, dt: float, state: EavState, eav: EavParams, target: np.ndarray,
          yaw_target: float | None = None, yaw_rate_max: float = 0.0) -> EavCommand:  # fmt: skip
     """Fly to a NED position with the auto limits."""
-    # the same setpoint object while the target's bits are unchanged (a hold target stays put for thousands of steps)
-    key = target.tobytes() if isinstance(target, np.ndarray) and target.dtype.char == "d" else None
-    cached = ctx._goto_cache
-    if key is not None and cached is not None and cached[0] == key:
-        sp = cached[1]
-    else:
-        sp = TrajectorySetpoint(pos_ned_m=(float(target[0]), float(target[1]), float(target[2])))
-        ctx._goto_cache = (key, sp) if key is not None else None
+    sp = position_setpoint(ctx, target)
     return run_position(ctx, dt, state, sp, auto_limits(ctx), eav, yaw_target, yaw_rate_max)
