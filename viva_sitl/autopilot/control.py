@@ -103,8 +103,9 @@ def _norm3(buf: Vec3, x: float, y: float, z: float) -> float:
 def _libm_hypot() -> Callable[[float, float], float] | None:
     """The C library's hypot through ctypes (~0.4 us a call; np.hypot on two floats ~0.7 us). np.hypot calls the
     same libm function; math.hypot is Python's own algorithm and differs in the last bit now and then."""
-    try:  # the symbols already loaded into the process (CPython links libm), no library search
-        fn = ctypes.CDLL(None).hypot
+    try:  # the symbols already loaded into the process (CPython links libm), no library search; PyDLL keeps
+        # the GIL (a CDLL call releases and re-takes it: 4 GIL hand-overs per step to any other thread)
+        fn = ctypes.PyDLL(None).hypot
     except (OSError, AttributeError, TypeError):
         return None
     fn.restype = ctypes.c_double
