@@ -285,11 +285,29 @@ def _scenarios() -> dict[str, Callable[[], dict[str, Any]]]:
     }
 
 
-def record(path: Path) -> None:
+def _trial_files(footage: Path) -> dict[str, Any]:
+    """An in-process 60 s landing trial over `footage` (bench_trials' VisionDescend pilot, which reads every VAC
+    frame): its trajectory CSV, events and end record, as written, byte for byte."""
+    repo = Path(os.environ["PYTHONPATH"].split(os.pathsep)[0])
+    sys.path.insert(0, str(repo))
+    from bench.bench_trials import bench_spec
+    from viva_sitl.evaluation.runner import run_inprocess_trial
+    from viva_sitl.evaluation.spec import draw_scenarios
+
+    spec = bench_spec(footage, 2)
+    with tempfile.TemporaryDirectory() as d:
+        run_inprocess_trial(spec, draw_scenarios(spec)[1], "bench.bench_trials:VisionDescend", Path(d) / "t")
+        files = sorted(p for p in Path(d, "t").rglob("*") if p.is_file())
+        return {f"trial/{p.name}": np.frombuffer(p.read_bytes(), dtype=np.uint8) for p in files}
+
+
+def record(path: Path, trial_footage: Path | None = None) -> None:
     arrays: dict[str, Any] = {}
     for name, fn in _scenarios().items():
         for key, value in fn().items():
             arrays[f"{name}/{key}"] = np.asarray(value)
+    if trial_footage is not None:
+        arrays.update(_trial_files(trial_footage))
     np.savez(path, **arrays)
 
 
@@ -307,7 +325,7 @@ def compare(a_path: Path, b_path: Path) -> int:
             continue
         x, y = a[key], b[key]
         same = _digest(x) == _digest(y)
-        info = f"shape {x.shape}" if x.dtype.kind == "f" else f"{x.dtype}"
+        info = f"shape {x.shape}" if x.dtype.kind in "fu" else f"{x.dtype}"
         print(f"{'same' if same else 'DIFF':4s}  {key:32s} {info:16s} {_digest(x)} {_digest(y)}")
         if not same:
             bad += 1
@@ -328,9 +346,11 @@ def main() -> int:
     ap.add_argument(
         "--new", type=Path, default=Path(__file__).resolve().parents[1], help="the tree under test"
     )
+    ap.add_argument("--trial-footage", type=Path, help="also compare an in-process landing trial's files over this "
+                    "footage (e.g. /tmp/viva-sitl-bench/interchange_3840x2160_60f_tiles_jpeg)")  # fmt: skip
     args = ap.parse_args()
     if args.record:
-        record(args.record)
+        record(args.record, args.trial_footage)
         return 0
     if args.base is None:
         ap.error("--base or --record is required")
@@ -339,7 +359,10 @@ def main() -> int:
         for label, tree in (("base", args.base), ("new", args.new)):
             out = Path(tmp) / f"{label}.npz"
             env = {**os.environ, "PYTHONPATH": str(tree.resolve())}
-            subprocess.run([sys.executable, __file__, "--record", str(out)], env=env, check=True)
+            cmd = [sys.executable, __file__, "--record", str(out)]
+            if args.trial_footage is not None:
+                cmd += ["--trial-footage", str(args.trial_footage.resolve())]
+            subprocess.run(cmd, env=env, check=True)
             paths.append(out)
         return compare(paths[0], paths[1])
 
