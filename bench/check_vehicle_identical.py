@@ -231,6 +231,10 @@ def _scenarios() -> dict[str, Callable[[], dict[str, Any]]]:
             v.params.set("MPC_XY_CRUISE", 7.0)
             r.out(v.autopilot.reposition(v.time_s, 10.0, 10.0, -6.0, 0.7))
             r.step(250 * 8)
+            v.params.set("SIM_ATT_TAU", 0.0)  # instant tilt, rate-limited; unlimited yaw rate
+            v.params.set("SIM_YAW_RATE_MAX", 0.0)
+            r.out(v.autopilot.reposition(v.time_s, -5.0, 0.0, -8.0, -2.0))
+            r.step(250 * 5)
             r.out(v.autopilot.land(v.time_s))
             r.step(250 * 10)
             return r.result()

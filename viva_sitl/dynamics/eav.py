@@ -64,15 +64,56 @@ def _attitude_response(state: EavState, cmd: EavCommand, params: EavParams) -> N
     return np.array(_attitude_rpy(state, cmd, params))
 
 
+_AxisGains = tuple[
+    float | None, float | None
+]  # (1 - exp(-dt/tau), None: tau <= 0; rad per step, None: unlimited)
+
+
+def _axis_gains(tau_s: float, max_rate_deg_s: float, dt_s: float) -> _AxisGains:
+    """_axis_step's two per-parameter factors, computed as _axis_step computes them."""
+    k = None if tau_s <= 0.0 else 1.0 - math.exp(-dt_s / tau_s)
+    lim = math.radians(max_rate_deg_s) * dt_s if max_rate_deg_s > 0.0 else None
+    return k, lim
+
+
+def _axis_step_gains(err_rad: float, gains: _AxisGains) -> float:
+    """_axis_step with its factors precomputed (the same operations on the same doubles)."""
+    k, lim = gains
+    d = err_rad if k is None else k * err_rad
+    if lim is not None:
+        d = max(-lim, min(lim, d))
+    return d
+
+
+# the last EavParams seen and its (ideal attitude, yaw gains, roll/pitch gains): one tuple, swapped atomically; the
+# params object is frozen and held here, so identity means the same values
+_attitude_cache: tuple[EavParams, tuple[bool, _AxisGains, _AxisGains]] | None = None
+
+
+def _attitude_consts(params: EavParams) -> tuple[bool, _AxisGains, _AxisGains]:
+    global _attitude_cache
+    cached = _attitude_cache
+    if cached is not None and cached[0] is params:
+        return cached[1]
+    dt = params.dt_s
+    consts = (
+        params.ideal_attitude,
+        _axis_gains(params.yaw_tau_s, params.max_yaw_rate_deg_s, dt),
+        _axis_gains(params.attitude_tau_s, params.max_roll_pitch_rate_deg_s, dt),
+    )
+    _attitude_cache = (params, consts)
+    return consts
+
+
 def _attitude_rpy(state: EavState, cmd: EavCommand, params: EavParams) -> tuple[float, float, float]:
     """_attitude_response as (roll, pitch, yaw) floats."""
     roll = max(-params.max_tilt_rad, min(params.max_tilt_rad, cmd.roll_rad))
     pitch = max(-params.max_tilt_rad, min(params.max_tilt_rad, cmd.pitch_rad))
-    if params.ideal_attitude:
+    ideal, yaw_gains, tilt_gains = _attitude_consts(params)
+    if ideal:
         return float(roll), float(pitch), wrap_pi(cmd.yaw_rad)
     r0, p0, y0 = state.att_rpy_rad.tolist()
-    dt = params.dt_s
-    y1 = wrap_pi(y0 + _axis_step(wrap_pi(cmd.yaw_rad - y0), params.yaw_tau_s, params.max_yaw_rate_deg_s, dt))
+    y1 = wrap_pi(y0 + _axis_step_gains(wrap_pi(cmd.yaw_rad - y0), yaw_gains))
     d0, dc = wrap_pi(y0 - y1), wrap_pi(cmd.yaw_rad - y1)
     if d0 == 0.0 and dc == 0.0:  # heading steady: roll and pitch are independent axes
         fwd0, right0, fwd_c, right_c = -p0, r0, -pitch, roll
@@ -81,9 +122,8 @@ def _attitude_rpy(state: EavState, cmd: EavCommand, params: EavParams) -> tuple[
         cc, sc = math.cos(dc), math.sin(dc)
         fwd0, right0 = c0 * -p0 - s0 * r0, s0 * -p0 + c0 * r0
         fwd_c, right_c = cc * -pitch - sc * roll, sc * -pitch + cc * roll
-    tau, rate = params.attitude_tau_s, params.max_roll_pitch_rate_deg_s
-    fwd1 = fwd0 + _axis_step(fwd_c - fwd0, tau, rate, dt)
-    right1 = right0 + _axis_step(right_c - right0, tau, rate, dt)
+    fwd1 = fwd0 + _axis_step_gains(fwd_c - fwd0, tilt_gains)
+    right1 = right0 + _axis_step_gains(right_c - right0, tilt_gains)
     return float(right1), float(-fwd1), float(y1)
 
 
