@@ -24,6 +24,9 @@ from viva_sitl.autopilot.failsafe import (
     SwitchMode,
     evaluate,
 )
+from viva_sitl.autopilot.failsafe import (
+    quiet as failsafe_quiet,
+)
 from viva_sitl.autopilot.geofence import Geofence, RallyPoint
 from viva_sitl.autopilot.land_detector import LandDetector
 from viva_sitl.autopilot.orbit import apply_command
@@ -343,15 +346,30 @@ class Commander:
     # --- failsafes --------------------------------------------------------------------------------
     def check_failsafes(self, now_s: float) -> None:
         ctx, tasks = self.ctx, self.tasks
-        pos = ctx.pos
         inside: bool | None = None
         if ctx.footage_action() != 0 and now_s >= self._gf_next_check_s:
             self._gf_next_check_s = now_s + GEOFENCE_CHECK_S
+            pos = ctx.pos
             inside = ctx.is_inside(float(pos[0]), float(pos[1]))
         fence: Geofence | None = None
         if now_s >= self._fence_next_check_s:
             self._fence_next_check_s = now_s + GEOFENCE_CHECK_S
             fence = ctx.geofence
+        if (
+            inside is None
+            and fence is None
+            and failsafe_quiet(
+                now_s,
+                ctx.mode,
+                tasks.offboard.last_s,
+                self.gcs_seen,
+                self.gcs_last_s,
+                self.failsafe_flags,
+                ctx.params,
+            )  # fmt: skip
+        ):
+            return  # nothing evaluate() could act on this step
+        pos = ctx.pos
         home = ctx.home
         inp = FailsafeInputs(
             now_s=now_s,

@@ -15,7 +15,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from viva_sitl.autopilot.battery import Battery, BatteryConfig
-from viva_sitl.autopilot.control import Gains, PositionController
+from viva_sitl.autopilot.control import Airframe, Gains, PositionController, TrajectorySetpoint
 from viva_sitl.autopilot.geofence import Geofence, RallyPoint
 from viva_sitl.autopilot.params import SIM_EAV_PARAMS, ParamStore
 from viva_sitl.autopilot.types import Event, FlightMode, Severity
@@ -56,6 +56,11 @@ class FlightContext:
     _gains_rev: int = -1
     # tasks/common.limits' last (key, airframe, Limits): it runs at 250 Hz
     _limits_cache: tuple[object, EavParams, object] | None = field(default=None, repr=False, compare=False)
+    _airframe_cache: tuple[EavParams, Airframe] | None = field(default=None, repr=False, compare=False)
+    # tasks/common.position_setpoint / descent_setpoint: kind -> (the inputs' bits, TrajectorySetpoint)
+    _sp_cache: dict[str, tuple[bytes, TrajectorySetpoint]] = field(
+        default_factory=dict, repr=False, compare=False
+    )
 
     def __post_init__(self) -> None:
         self.home = np.array([0.0, 0.0, float(self.base_eav.ground_z_ned_m)])

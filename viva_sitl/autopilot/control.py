@@ -8,8 +8,11 @@ position are feed-forward.
 
 from __future__ import annotations
 
+import ctypes
 import math
-from dataclasses import dataclass, field
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import cast
 
 import numpy as np
 from numpy.typing import NDArray
@@ -18,11 +21,6 @@ from viva_sitl.dynamics import wrap_pi
 
 Vec3 = NDArray[np.float64]
 _NAN3 = (math.nan, math.nan, math.nan)
-
-
-def _nan_to_zero(v: Vec3) -> Vec3:
-    # np.nan_to_num costs ~15 µs on a 3-vector (it also handles inf); this is ~1 µs and inputs are never inf.
-    return np.where(np.isnan(v), 0.0, v)
 
 
 def nan3() -> Vec3:
@@ -93,92 +91,173 @@ def _braking_speed(dist_m: float, gain: float, brake_acc: float) -> float:
     return min(gain * dist_m, math.sqrt(2.0 * brake_acc * dist_m))
 
 
-def attitude_from_thrust_vector(force_ned_n: Vec3, yaw_rad: float) -> tuple[float, float, float]:
-    """(roll, pitch, |F|) such that the body -z axis (thrust) of a ZYX attitude with this yaw points along F."""
-    thrust = float(np.linalg.norm(force_ned_n))
+def _norm3(buf: Vec3, x: float, y: float, z: float) -> float:
+    """np.linalg.norm of (x, y, z), bit for bit: sqrt(v.dot(v)) (BLAS ddot, whose rounding math on floats does not
+    reproduce) on `buf`, a float64 3-vector reused so that no array is created per call."""
+    buf[0] = x
+    buf[1] = y
+    buf[2] = z
+    return math.sqrt(buf.dot(buf))
+
+
+def _libm_hypot() -> Callable[[float, float], float] | None:
+    """The C library's hypot through ctypes (~0.4 us a call; np.hypot on two floats ~0.7 us). np.hypot calls the
+    same libm function; math.hypot is Python's own algorithm and differs in the last bit now and then."""
+    try:  # the symbols already loaded into the process (CPython links libm), no library search; PyDLL keeps
+        # the GIL (a CDLL call releases and re-takes it: 4 GIL hand-overs per step to any other thread)
+        fn = ctypes.PyDLL(None).hypot
+    except (OSError, AttributeError, TypeError):
+        return None
+    fn.restype = ctypes.c_double
+    fn.argtypes = (ctypes.c_double, ctypes.c_double)
+    ok = all(fn(x, y) == float(np.hypot(x, y)) for x, y in ((3.0, 4.0), (0.1, 0.7), (1e-3, 2.5), (-0.3, 1e5)))
+    return cast("Callable[[float, float], float]", fn) if ok else None
+
+
+def _np_hypot(x: float, y: float) -> float:
+    return float(np.hypot(x, y))
+
+
+_hypot: Callable[[float, float], float] = _libm_hypot() or _np_hypot
+
+
+def _attitude_from_force(norm_buf: Vec3, fx: float, fy: float, fz: float, yaw_rad: float
+                         ) -> tuple[float, float, float]:  # fmt: skip
+    thrust = _norm3(norm_buf, fx, fy, fz)
     if thrust < 1e-9:
         return 0.0, 0.0, 0.0
-    b3 = -force_ned_n / thrust  # body z axis (down) in NED
+    b0, b1, b2 = -fx / thrust, -fy / thrust, -fz / thrust  # body z axis (down) in NED
     cy, sy = math.cos(yaw_rad), math.sin(yaw_rad)
     # Rz(-yaw) b3 = (sin p cos r, -sin r, cos p cos r) for the ZYX convention.
-    bx = cy * b3[0] + sy * b3[1]
-    by = -sy * b3[0] + cy * b3[1]
-    bz = float(b3[2])
+    bx = cy * b0 + sy * b1
+    by = -sy * b0 + cy * b1
     roll = -math.asin(max(-1.0, min(1.0, by)))
-    pitch = math.atan2(bx, bz)
+    pitch = math.atan2(bx, b2)
     return roll, pitch, thrust
 
 
-@dataclass
-class PositionController:
-    """Position P -> velocity PI -> thrust vector, with PX4's limits and anti-windup. One per vehicle."""
+def attitude_from_thrust_vector(force_ned_n: Vec3, yaw_rad: float) -> tuple[float, float, float]:
+    """(roll, pitch, |F|) such that the body -z axis (thrust) of a ZYX attitude with this yaw points along F."""
+    f = np.asarray(force_ned_n, dtype=np.float64).reshape(3)
+    return _attitude_from_force(np.empty(3), float(f[0]), float(f[1]), float(f[2]), yaw_rad)
 
-    gains: Gains = field(default_factory=Gains)
-    vel_int_m_s2: Vec3 = field(default_factory=lambda: np.zeros(3))  # integral term (already times I gain)
-    last_vel_sp_ned_m_s: Vec3 = field(default_factory=lambda: np.full(3, np.nan))  # NaN: start from measured
+
+def _nz(x: float) -> float:
+    """NaN -> 0.0 (inf kept), as np.where(np.isnan(x), 0.0, x)."""
+    return x if x == x else 0.0
+
+
+_isfinite = math.isfinite
+
+Xyz = tuple[float, float, float]
+
+
+class PositionController:
+    """Position P -> velocity PI -> thrust vector, with PX4's limits and anti-windup. One per vehicle.
+
+    The 250 Hz step works on Python floats, one axis after the other, in the order of operations the numpy
+    3-vector code had (the same IEEE doubles, so the same bits); the state is exposed as numpy arrays."""
+
+    def __init__(self, gains: Gains | None = None) -> None:
+        self.gains = gains if gains is not None else Gains()
+        self._int: Xyz = (0.0, 0.0, 0.0)  # integral term (already times I gain)
+        self._last: Xyz = _NAN3  # last velocity setpoint; NaN: start from measured
+        self._norm_buf = np.empty(3)
+
+    @property
+    def vel_int_m_s2(self) -> Vec3:
+        """The velocity integrator (already times the I gain), a copy."""
+        return np.array(self._int, dtype=np.float64)
+
+    @vel_int_m_s2.setter
+    def vel_int_m_s2(self, value: Vec3) -> None:
+        v = np.asarray(value, dtype=np.float64).reshape(3)
+        self._int = (float(v[0]), float(v[1]), float(v[2]))
+
+    @property
+    def last_vel_sp_ned_m_s(self) -> Vec3:
+        """The last velocity setpoint (NaN: none yet, the next one slews from the measured velocity), a copy."""
+        return np.array(self._last, dtype=np.float64)
+
+    @last_vel_sp_ned_m_s.setter
+    def last_vel_sp_ned_m_s(self, value: Vec3) -> None:
+        v = np.asarray(value, dtype=np.float64).reshape(3)
+        self._last = (float(v[0]), float(v[1]), float(v[2]))
 
     def reset(self) -> None:
-        self.vel_int_m_s2 = np.zeros(3)
-        self.last_vel_sp_ned_m_s = np.full(3, np.nan)
+        self._int = (0.0, 0.0, 0.0)
+        self._last = _NAN3
 
     def restart_trajectory(self) -> None:
         """Next velocity setpoint slews from the measured velocity (mode change), integrators kept."""
-        self.last_vel_sp_ned_m_s = np.full(3, np.nan)
+        self._last = _NAN3
 
     def reset_xy(self) -> None:
-        self.vel_int_m_s2[:2] = 0.0
+        self._int = (0.0, 0.0, self._int[2])
 
     def velocity_setpoint(self, pos_ned_m: Vec3, sp: TrajectorySetpoint, limits: Limits) -> tuple[Vec3, Vec3]:
         """Position P with feed-forward -> (vel_sp, acc_ff). NaN vel_sp: that axis is acceleration-only."""
-        g = self.gains
-        pos_sp = np.asarray(sp.pos_ned_m, dtype=np.float64)
-        vel_ff = np.asarray(sp.vel_ned_m_s, dtype=np.float64)
-        acc_ff = np.asarray(sp.acc_ned_m_s2, dtype=np.float64)
-        vel_sp = vel_ff.copy()
-        # Horizontal: P on the 2D error, direction preserved, braking-limited.
-        if math.isfinite(pos_sp[0]) and math.isfinite(pos_sp[1]):  # (np.all costs ~5 µs per call)
-            err = pos_sp[:2] - pos_ned_m[:2]
-            dist = float(np.hypot(err[0], err[1]))
-            v_xy = np.zeros(2)
-            if dist > 1e-9:
-                v_xy = err / dist * _braking_speed(dist, g.pos_xy_p, limits.brake_acc_xy_m_s2)
-            ff = _nan_to_zero(vel_ff[:2])
-            vel_sp[:2] = v_xy + ff
-        if math.isfinite(pos_sp[2]):
-            err_z = float(pos_sp[2] - pos_ned_m[2])
-            v_z = math.copysign(_braking_speed(abs(err_z), g.pos_z_p, limits.brake_acc_z_m_s2), err_z)
-            vel_sp[2] = v_z + (vel_ff[2] if math.isfinite(vel_ff[2]) else 0.0)
-        # Speed limits (PX4: horizontal norm, vertical up/down separately).
-        if math.isfinite(vel_sp[0]) and math.isfinite(vel_sp[1]):
-            n = float(np.hypot(vel_sp[0], vel_sp[1]))
-            if n > limits.vel_xy_m_s:
-                vel_sp[:2] *= limits.vel_xy_m_s / n
-        if math.isfinite(vel_sp[2]):
-            vel_sp[2] = min(max(vel_sp[2], -limits.vel_up_m_s), limits.vel_down_m_s)
-        return vel_sp, acc_ff
+        p = np.asarray(pos_ned_m, dtype=np.float64).reshape(3)
+        vel_sp, acc_ff = self._velocity_setpoint(float(p[0]), float(p[1]), float(p[2]), sp, limits)
+        return np.array(vel_sp, dtype=np.float64), np.array(acc_ff, dtype=np.float64)
 
-    def _slew(
-        self, dt_s: float, vel_sp: Vec3, acc_ff: Vec3, vel_ned_m_s: Vec3, limits: Limits
-    ) -> tuple[Vec3, Vec3]:
+    def _velocity_setpoint(self, px: float, py: float, pz: float, sp: TrajectorySetpoint, limits: Limits
+                           ) -> tuple[Xyz, Xyz]:  # fmt: skip
+        g = self.gains
+        spx, spy, spz = sp.pos_ned_m
+        spx, spy, spz = float(spx), float(spy), float(spz)
+        fx, fy, fz = sp.vel_ned_m_s
+        vx, vy, vz = fx, fy, fz = float(fx), float(fy), float(fz)
+        ax, ay, az = sp.acc_ned_m_s2
+        acc: Xyz = (float(ax), float(ay), float(az))
+        # Horizontal: P on the 2D error, direction preserved, braking-limited.
+        if _isfinite(spx) and _isfinite(spy):
+            ex, ey = spx - px, spy - py
+            dist = _hypot(ex, ey)
+            vxy0 = vxy1 = 0.0
+            if dist > 1e-9:
+                speed = _braking_speed(dist, g.pos_xy_p, limits.brake_acc_xy_m_s2)
+                vxy0, vxy1 = ex / dist * speed, ey / dist * speed
+            vx, vy = vxy0 + _nz(fx), vxy1 + _nz(fy)
+        if _isfinite(spz):
+            err_z = spz - pz
+            v_z = math.copysign(_braking_speed(abs(err_z), g.pos_z_p, limits.brake_acc_z_m_s2), err_z)
+            vz = v_z + (fz if _isfinite(fz) else 0.0)
+        # Speed limits (PX4: horizontal norm, vertical up/down separately).
+        if _isfinite(vx) and _isfinite(vy):
+            n = _hypot(vx, vy)
+            if n > limits.vel_xy_m_s:
+                k = limits.vel_xy_m_s / n
+                vx, vy = vx * k, vy * k
+        if _isfinite(vz):
+            vz = float(min(max(vz, -limits.vel_up_m_s), limits.vel_down_m_s))
+        return (vx, vy, vz), acc
+
+    def _slew(self, dt_s: float, vel_sp: Xyz, acc_ff: Xyz, vel: Xyz, limits: Limits) -> tuple[Xyz, Xyz]:
         """Rate-limit the velocity setpoint (auto modes) and feed its slope forward: smooth, overshoot-free moves."""
         if dt_s <= 0.0:
             return vel_sp, acc_ff
-        prev = np.where(np.isfinite(self.last_vel_sp_ned_m_s), self.last_vel_sp_ned_m_s, vel_ned_m_s)
-        vel_sp, acc_ff = vel_sp.copy(), acc_ff.copy()
-        if math.isfinite(limits.slew_acc_xy_m_s2) and math.isfinite(vel_sp[0]) and math.isfinite(vel_sp[1]):
-            dv = vel_sp[:2] - prev[:2]
-            n = float(np.hypot(dv[0], dv[1]))
+        lx, ly, lz = self._last
+        px = lx if _isfinite(lx) else vel[0]
+        py = ly if _isfinite(ly) else vel[1]
+        pz = lz if _isfinite(lz) else vel[2]
+        vx, vy, vz = vel_sp
+        ax, ay, az = acc_ff
+        if _isfinite(limits.slew_acc_xy_m_s2) and _isfinite(vx) and _isfinite(vy):
+            dvx, dvy = vx - px, vy - py
+            n = _hypot(dvx, dvy)
             max_dv = limits.slew_acc_xy_m_s2 * dt_s
             if n > max_dv:
-                dv *= max_dv / n
-            vel_sp[:2] = prev[:2] + dv
-            acc_ff[:2] = _nan_to_zero(acc_ff[:2]) + dv / dt_s
-        if math.isfinite(limits.slew_acc_up_m_s2) and math.isfinite(vel_sp[2]):
-            dz = float(vel_sp[2] - prev[2])
+                k = max_dv / n
+                dvx, dvy = dvx * k, dvy * k
+            vx, vy = px + dvx, py + dvy
+            ax, ay = _nz(ax) + dvx / dt_s, _nz(ay) + dvy / dt_s
+        if _isfinite(limits.slew_acc_up_m_s2) and _isfinite(vz):
+            dz = vz - pz
             dz = min(max(dz, -limits.slew_acc_up_m_s2 * dt_s), limits.slew_acc_down_m_s2 * dt_s)
-            vel_sp[2] = prev[2] + dz
-            acc_ff[2] = (acc_ff[2] if math.isfinite(acc_ff[2]) else 0.0) + dz / dt_s
-        return vel_sp, acc_ff
+            vz = pz + dz
+            az = (az if _isfinite(az) else 0.0) + dz / dt_s
+        return (vx, vy, vz), (ax, ay, az)
 
     def update(
         self,
@@ -192,44 +271,59 @@ class PositionController:
         integrate: bool = True,
     ) -> AttitudeThrust:
         """One control step -> attitude and thrust for the EAV. `integrate=False` freezes the integrator (ground)."""
+        p = np.asarray(pos_ned_m, dtype=np.float64).reshape(3).tolist()
+        v = np.asarray(vel_ned_m_s, dtype=np.float64).reshape(3).tolist()
+        return self.update_xyz(dt_s, p[0], p[1], p[2], (v[0], v[1], v[2]), sp, yaw_sp_rad, limits, airframe,
+                               integrate)  # fmt: skip
+
+    def update_xyz(self, dt_s: float, px: float, py: float, pz: float, vel: Xyz, sp: TrajectorySetpoint,
+                   yaw_sp_rad: float, limits: Limits, airframe: Airframe, integrate: bool = True,
+                   ) -> AttitudeThrust:  # fmt: skip
+        """`update` on floats: position (px, py, pz) and velocity `vel`, NED."""
         g = self.gains
-        vel_sp, acc_ff = self.velocity_setpoint(pos_ned_m, sp, limits)
-        vel_sp, acc_ff = self._slew(dt_s, vel_sp, acc_ff, vel_ned_m_s, limits)
-        self.last_vel_sp_ned_m_s = vel_sp.copy()
-        vel_ctrl = np.isfinite(vel_sp)
-        kp = np.array([g.vel_xy_p, g.vel_xy_p, g.vel_z_p])
-        ki = np.array([g.vel_xy_i, g.vel_xy_i, g.vel_z_i])
-        err = np.where(vel_ctrl, _nan_to_zero(vel_sp) - vel_ned_m_s, 0.0)
-        acc_sp = kp * err + np.where(vel_ctrl, self.vel_int_m_s2, 0.0) + _nan_to_zero(acc_ff)
+        vel_sp, acc_ff = self._velocity_setpoint(px, py, pz, sp, limits)
+        (vx, vy, vz), (ax, ay, az) = self._slew(dt_s, vel_sp, acc_ff, vel, limits)
+        self._last = (vx, vy, vz)
+        mvx, mvy, mvz = vel
+        cx, cy, cz = _isfinite(vx), _isfinite(vy), _isfinite(vz)
+        ex = vx - mvx if cx else 0.0
+        ey = vy - mvy if cy else 0.0
+        ez = vz - mvz if cz else 0.0
+        ix, iy, iz = self._int
+        kxy, kz = g.vel_xy_p, g.vel_z_p
+        acc_x = kxy * ex + (ix if cx else 0.0) + _nz(ax)
+        acc_y = kxy * ey + (iy if cy else 0.0) + _nz(ay)
+        acc_z = kz * ez + (iz if cz else 0.0) + _nz(az)
         m, gz = airframe.mass_kg, airframe.gravity_m_s2
         # Drag feed-forward: the airframe's k_d is known to the autopilot (it is a SIM_ parameter).
-        drag_ff = airframe.drag_kd_n_s_m / m * vel_ned_m_s
-        force = m * (acc_sp + drag_ff - np.array([0.0, 0.0, gz]))
+        kd_m = airframe.drag_kd_n_s_m / m
+        f_x = m * (acc_x + kd_m * mvx)
+        f_y = m * (acc_y + kd_m * mvy)
+        fz_unsat = m * (acc_z + kd_m * mvz - gz)
 
         # Vertical first (PX4 prioritises altitude): keep thrust within [min, max] along -z.
-        fz_unsat = float(force[2])
         fz = min(max(fz_unsat, -limits.thrust_max_n), -limits.thrust_min_n)
         sat_z = fz != fz_unsat
         # Horizontal: tilt limit and remaining thrust margin.
-        f_xy = force[:2].copy()
         f_xy_max = abs(fz) * math.tan(limits.tilt_max_rad)
         f_xy_max = min(f_xy_max, math.sqrt(max(0.0, limits.thrust_max_n**2 - fz * fz)))
-        n_xy = float(np.hypot(f_xy[0], f_xy[1]))
+        n_xy = _hypot(f_x, f_y)
         sat_xy = n_xy > f_xy_max
         if sat_xy:
-            f_xy *= f_xy_max / n_xy
-        force = np.array([f_xy[0], f_xy[1], fz])
+            k = f_xy_max / n_xy
+            f_x, f_y = f_x * k, f_y * k
 
         if integrate and dt_s > 0.0:
             # Conditional integration (anti-windup): no integration on a saturated axis group.
-            inc = ki * err * dt_s
+            kixy, kiz = g.vel_xy_i, g.vel_z_i
             if not sat_xy:
-                self.vel_int_m_s2[:2] += inc[:2]
+                ix += kixy * ex * dt_s
+                iy += kixy * ey * dt_s
             if not sat_z:
-                self.vel_int_m_s2[2] += inc[2]
+                iz += kiz * ez * dt_s
             lim = 0.5 * gz  # integral authority: half a g
-            np.clip(self.vel_int_m_s2, -lim, lim, out=self.vel_int_m_s2)
-        roll, pitch, thrust = attitude_from_thrust_vector(force, yaw_sp_rad)
+            self._int = (min(max(ix, -lim), lim), min(max(iy, -lim), lim), min(max(iz, -lim), lim))
+        roll, pitch, thrust = _attitude_from_force(self._norm_buf, f_x, f_y, fz, yaw_sp_rad)
         return AttitudeThrust(roll, pitch, yaw_sp_rad, thrust)
 
 

@@ -155,6 +155,20 @@ def evaluate(inp: FailsafeInputs, flags: FailsafeFlags, p: ParamStore) -> tuple[
     return flags, out
 
 
+def quiet(now_s: float, mode: FlightMode, offboard_last_s: float, gcs_seen: bool, gcs_last_s: float,
+          flags: FailsafeFlags, p: ParamStore) -> bool:  # fmt: skip
+    """True when `evaluate` with these inputs, no footage test (inside None) and no fence test (geofence None) would
+    return no action and flags equal to `flags` — the common case, checked without building FailsafeInputs (this
+    runs at 250 Hz). Conservative: False sends the caller to `evaluate`, which stays the reference."""
+    if (
+        mode in _MANUAL_MODES or flags.rc_lost_handled
+    ):  # the manual-control branch may act or change the flags
+        return False
+    if mode == FlightMode.OFFBOARD and now_s - offboard_last_s > p.get("COM_OF_LOSS_T"):
+        return False
+    return not (gcs_seen and not flags.dll_lost and now_s - gcs_last_s > p.get("COM_DL_LOSS_T"))
+
+
 def battery_level(remaining: float, p: ParamStore) -> int:
     """0 ok, 1 low (BAT_LOW_THR), 2 critical (BAT_CRIT_THR)."""
     return 2 if remaining <= p.get("BAT_CRIT_THR") else 1 if remaining <= p.get("BAT_LOW_THR") else 0

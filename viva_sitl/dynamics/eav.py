@@ -15,7 +15,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from viva_sitl.dynamics.params import EavParams, WindParams
-from viva_sitl.dynamics.rotation import rot_body_to_ned, wrap_pi
+from viva_sitl.dynamics.rotation import wrap_pi
 from viva_sitl.dynamics.state import EavCommand, EavState, vec3
 
 _E3 = np.array([0.0, 0.0, 1.0])
@@ -61,13 +61,59 @@ def _attitude_response(state: EavState, cmd: EavCommand, params: EavParams) -> N
     reduced-attitude control, the tilt (thrust direction) is tracked apart from the heading: the tilt is lagged as a
     NED-fixed (forward, right) pair, so a yaw still under way never swings the thrust off its commanded direction
     (small-angle composition; exact per axis while the heading is constant)."""
+    return np.array(_attitude_rpy(state, cmd, params))
+
+
+_AxisGains = tuple[
+    float | None, float | None
+]  # (1 - exp(-dt/tau), None: tau <= 0; rad per step, None: unlimited)
+
+
+def _axis_gains(tau_s: float, max_rate_deg_s: float, dt_s: float) -> _AxisGains:
+    """_axis_step's two per-parameter factors, computed as _axis_step computes them."""
+    k = None if tau_s <= 0.0 else 1.0 - math.exp(-dt_s / tau_s)
+    lim = math.radians(max_rate_deg_s) * dt_s if max_rate_deg_s > 0.0 else None
+    return k, lim
+
+
+def _axis_step_gains(err_rad: float, gains: _AxisGains) -> float:
+    """_axis_step with its factors precomputed (the same operations on the same doubles)."""
+    k, lim = gains
+    d = err_rad if k is None else k * err_rad
+    if lim is not None:
+        d = max(-lim, min(lim, d))
+    return d
+
+
+# the last EavParams seen and its (ideal attitude, yaw gains, roll/pitch gains): one tuple, swapped atomically; the
+# params object is frozen and held here, so identity means the same values
+_attitude_cache: tuple[EavParams, tuple[bool, _AxisGains, _AxisGains]] | None = None
+
+
+def _attitude_consts(params: EavParams) -> tuple[bool, _AxisGains, _AxisGains]:
+    global _attitude_cache
+    cached = _attitude_cache
+    if cached is not None and cached[0] is params:
+        return cached[1]
+    dt = params.dt_s
+    consts = (
+        params.ideal_attitude,
+        _axis_gains(params.yaw_tau_s, params.max_yaw_rate_deg_s, dt),
+        _axis_gains(params.attitude_tau_s, params.max_roll_pitch_rate_deg_s, dt),
+    )
+    _attitude_cache = (params, consts)
+    return consts
+
+
+def _attitude_rpy(state: EavState, cmd: EavCommand, params: EavParams) -> tuple[float, float, float]:
+    """_attitude_response as (roll, pitch, yaw) floats."""
     roll = max(-params.max_tilt_rad, min(params.max_tilt_rad, cmd.roll_rad))
     pitch = max(-params.max_tilt_rad, min(params.max_tilt_rad, cmd.pitch_rad))
-    if params.ideal_attitude:
-        return np.array([roll, pitch, wrap_pi(cmd.yaw_rad)])
-    r0, p0, y0 = (float(a) for a in state.att_rpy_rad)
-    dt = params.dt_s
-    y1 = wrap_pi(y0 + _axis_step(wrap_pi(cmd.yaw_rad - y0), params.yaw_tau_s, params.max_yaw_rate_deg_s, dt))
+    ideal, yaw_gains, tilt_gains = _attitude_consts(params)
+    if ideal:
+        return float(roll), float(pitch), wrap_pi(cmd.yaw_rad)
+    r0, p0, y0 = state.att_rpy_rad.tolist()
+    y1 = wrap_pi(y0 + _axis_step_gains(wrap_pi(cmd.yaw_rad - y0), yaw_gains))
     d0, dc = wrap_pi(y0 - y1), wrap_pi(cmd.yaw_rad - y1)
     if d0 == 0.0 and dc == 0.0:  # heading steady: roll and pitch are independent axes
         fwd0, right0, fwd_c, right_c = -p0, r0, -pitch, roll
@@ -76,10 +122,9 @@ def _attitude_response(state: EavState, cmd: EavCommand, params: EavParams) -> N
         cc, sc = math.cos(dc), math.sin(dc)
         fwd0, right0 = c0 * -p0 - s0 * r0, s0 * -p0 + c0 * r0
         fwd_c, right_c = cc * -pitch - sc * roll, sc * -pitch + cc * roll
-    tau, rate = params.attitude_tau_s, params.max_roll_pitch_rate_deg_s
-    fwd1 = fwd0 + _axis_step(fwd_c - fwd0, tau, rate, dt)
-    right1 = right0 + _axis_step(right_c - right0, tau, rate, dt)
-    return np.array([right1, -fwd1, y1])
+    fwd1 = fwd0 + _axis_step_gains(fwd_c - fwd0, tilt_gains)
+    right1 = right0 + _axis_step_gains(right_c - right0, tilt_gains)
+    return float(right1), float(-fwd1), float(y1)
 
 
 def paper_update(
@@ -102,13 +147,24 @@ def paper_update(
     return np.asarray(2.0 * pos_km1 - pos_km2 + (dt * dt / m) * force, dtype=np.float64)
 
 
+def _ro3(x: float, y: float, z: float) -> NDArray[np.float64]:
+    """vec3 of three floats (read-only float64), without vec3's generic conversion."""
+    a = np.array((x, y, z))
+    a.flags.writeable = False
+    return a
+
+
 def step(
     state: EavState,
     cmd: EavCommand,
     params: EavParams,
     rng: np.random.Generator | None = None,
 ) -> EavState:
-    """Advance the EAV by one step of params.dt_s. Pure: same inputs (and rng state) -> same output."""
+    """Advance the EAV by one step of params.dt_s. Pure: same inputs (and rng state) -> same output.
+
+    The arithmetic of rot_body_to_ned, disturbance_force_n and paper_update on Python floats, axis by axis, in their
+    order of operations (the same IEEE doubles, so the same bits; a 3-vector numpy op costs ~1 us, a float op ~30 ns).
+    """
     if not (
         math.isfinite(cmd.roll_rad)
         and math.isfinite(cmd.pitch_rad)
@@ -117,36 +173,79 @@ def step(
     ):
         raise ValueError(f"EAV command must be finite, got {cmd}")
     thrust = max(0.0, min(params.max_thrust_n, cmd.thrust_n))
-    att = _attitude_response(state, cmd, params)
-    rot = rot_body_to_ned(float(att[0]), float(att[1]), float(att[2]))
-    xi, gust = disturbance_force_n(state, params.wind, params, rng)
-    new_pos = paper_update(state.pos_ned_m, state.prev_pos_ned_m, rot, thrust, xi, params)
-    prev_pos = state.pos_ned_m
+    roll, pitch, yaw = _attitude_rpy(state, cmd, params)
+    # the body z column of rot_body_to_ned(roll, pitch, yaw): R @ e3 (the other columns meet e3's zeros)
+    cr, sr = math.cos(roll), math.sin(roll)
+    cp, sp = math.cos(pitch), math.sin(pitch)
+    cy, sy = math.cos(yaw), math.sin(yaw)
+    r02 = cy * sp * cr + sy * sr
+    r12 = sy * sp * cr - cy * sr
+    r22 = cp * cr
+    # xi_k (disturbance_force_n)
+    wind = params.wind
+    dt = params.dt_s
+    gust_arr = state.gust_ned_m_s
+    gx, gy, gz = gust_arr.tolist()
+    if (
+        gust_arr.flags.writeable
+    ):  # (states from EavState.at_rest and step are read-only: carried over as they are)
+        gust_arr = _ro3(gx, gy, gz)
+    if wind.gust_std_m_s > 0.0:
+        if rng is None:
+            raise ValueError("gusts need a numpy Generator")
+        a = math.exp(-dt / wind.gust_tau_s)
+        k = wind.gust_std_m_s * math.sqrt(1.0 - a * a)
+        nx, ny, nz = rng.standard_normal(3).tolist()
+        gx, gy, gz = a * gx + k * nx, a * gy + k * ny, a * gz + k * nz
+        gust_arr = _ro3(gx, gy, gz)
+    mw = wind.mean_wind_ned_m_s
+    kd = params.drag_kd_n_s_m
+    xi_x, xi_y, xi_z = kd * (float(mw[0]) + gx), kd * (float(mw[1]) + gy), kd * (float(mw[2]) + gz)
+    if wind.force_noise_std_n > 0.0:
+        if rng is None:
+            raise ValueError("force noise needs a numpy Generator")
+        nx, ny, nz = rng.standard_normal(3).tolist()
+        fs = wind.force_noise_std_n
+        xi_x, xi_y, xi_z = xi_x + fs * nx, xi_y + fs * ny, xi_z + fs * nz
+    # paper_update
+    m = params.mass_kg
+    mg = m * params.gravity_m_s2
+    kd_dt = kd / dt
+    kf = dt * dt / m
+    pos_arr = state.pos_ned_m
+    p1x, p1y, p1z = pos_arr.tolist()
+    p2x, p2y, p2z = state.prev_pos_ned_m.tolist()
+    fx = -r02 * thrust + 0.0 - kd_dt * (p1x - p2x) + xi_x
+    fy = -r12 * thrust + 0.0 - kd_dt * (p1y - p2y) + xi_y
+    fz = -r22 * thrust + mg - kd_dt * (p1z - p2z) + xi_z
+    nx_, ny_, nz_ = 2.0 * p1x - p2x + kf * fx, 2.0 * p1y - p2y + kf * fy, 2.0 * p1z - p2z + kf * fz
 
     landed = False
     touchdown = state.touchdown_speed_m_s
     ground = params.ground_z_ned_m
-    if new_pos[2] >= ground:
+    if nz_ >= ground:
         # Ground contact: the vehicle cannot sink below the ground; contact kills velocity (no bounce, no slide).
         if not state.landed:
-            touchdown = float(np.linalg.norm((new_pos - prev_pos) / params.dt_s))
-        net_up_n = float(-(rot @ _E3)[2] * thrust) - params.mass_kg * params.gravity_m_s2
-        new_pos = np.array([prev_pos[0], prev_pos[1], ground])
-        prev_pos = vec3(new_pos)
+            step_m = np.array((nx_, ny_, nz_)) - pos_arr
+            touchdown = float(np.linalg.norm(step_m / dt))
+        net_up_n = float(-r22 * thrust) - mg
+        new_pos = prev_pos = _ro3(p1x, p1y, float(ground))
         landed = net_up_n <= 1e-9
-        if not landed:
-            # Lift-off this step: stay on the ground plane, with no downward velocity, but not "landed".
-            pass
+        # not landed: lift-off this step, on the ground plane with no downward velocity, but not "landed"
+    else:
+        new_pos = _ro3(nx_, ny_, nz_)
+        # X_{k-1} becomes X_{k-2}: the same read-only array
+        prev_pos = pos_arr if not pos_arr.flags.writeable else _ro3(p1x, p1y, p1z)
     # every field given: the constructor directly (dataclasses.replace walks the fields; this runs at 250 Hz)
     return type(state)(
-        time_s=state.time_s + params.dt_s,
+        time_s=state.time_s + dt,
         step=state.step + 1,
-        pos_ned_m=vec3(new_pos),
-        prev_pos_ned_m=vec3(prev_pos),
-        att_rpy_rad=vec3(att),
+        pos_ned_m=new_pos,
+        prev_pos_ned_m=prev_pos,
+        att_rpy_rad=_ro3(roll, pitch, yaw),
         thrust_n=thrust,
-        gust_ned_m_s=gust,
+        gust_ned_m_s=gust_arr,
         landed=landed,
         touchdown_speed_m_s=touchdown,
-        dt_s=params.dt_s,
+        dt_s=dt,
     )

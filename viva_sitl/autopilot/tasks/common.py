@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import math
+import struct
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -72,6 +74,16 @@ def idle(ctx: FlightContext) -> EavCommand:
     return EavCommand(0.0, 0.0, ctx.yaw_sp, 0.0)
 
 
+def _airframe(ctx: FlightContext, eav: EavParams) -> Airframe:
+    """What the controller knows of `eav` (the same object while the airframe is unchanged: this runs at 250 Hz)."""
+    cached = ctx._airframe_cache
+    if cached is not None and cached[0] is eav:
+        return cached[1]
+    air = Airframe(mass_kg=eav.mass_kg, drag_kd_n_s_m=eav.drag_kd_n_s_m, gravity_m_s2=eav.gravity_m_s2)
+    ctx._airframe_cache = (eav, air)
+    return air
+
+
 def run_position(
     ctx: FlightContext, dt: float, state: EavState, sp: TrajectorySetpoint, lim: Limits, eav: EavParams,
     yaw_target: float | None, yaw_rate_max: float,
@@ -80,15 +92,13 @@ def run_position(
     if yaw_target is not None and math.isfinite(yaw_target):
         ctx.yaw_sp = slew_yaw(ctx.yaw_sp, yaw_target, yaw_rate_max, dt)
     on_ground = bool(state.landed)
-    out: AttitudeThrust = ctx.ctrl.update(
-        dt,
-        np.asarray(state.pos_ned_m, dtype=np.float64),
-        np.asarray(state.vel_ned_m_s, dtype=np.float64),
-        sp,
-        ctx.yaw_sp,
-        lim,
-        Airframe(mass_kg=eav.mass_kg, drag_kd_n_s_m=eav.drag_kd_n_s_m, gravity_m_s2=eav.gravity_m_s2),
-        integrate=not on_ground,
+    # floats, not 3-vectors: the same IEEE operations, in the same order, as state.vel_ned_m_s
+    p = state.pos_ned_m.tolist()
+    q = state.prev_pos_ned_m.tolist()
+    sdt = state.dt_s
+    vel = ((p[0] - q[0]) / sdt, (p[1] - q[1]) / sdt, (p[2] - q[2]) / sdt)
+    out: AttitudeThrust = ctx.ctrl.update_xyz(
+        dt, p[0], p[1], p[2], vel, sp, ctx.yaw_sp, lim, _airframe(ctx, eav), integrate=not on_ground
     )
     if on_ground:
         # On the ground: idle unless the controller asks for more than hover (take-off); no tilting.
@@ -100,8 +110,39 @@ def run_position(
     return EavCommand(out.roll_rad, out.pitch_rad, out.yaw_rad, out.thrust_n)
 
 
+_PACK3 = struct.Struct(
+    "=3d"
+).pack  # three doubles' bits: a cache key that tells -0.0 from 0.0 (and NaN never hits)
+
+
+def position_setpoint(ctx: FlightContext, target: Sequence[float] | np.ndarray) -> TrajectorySetpoint:
+    """TrajectorySetpoint(pos_ned_m=target as floats); the same object while the target's bits are unchanged (a
+    hold target or a waypoint stays put for thousands of 250 Hz steps)."""
+    x, y, z = target.tolist() if isinstance(target, np.ndarray) else target
+    key = _PACK3(x, y, z)
+    cached = ctx._sp_cache.get("pos")
+    if cached is not None and cached[0] == key:
+        return cached[1]
+    sp = TrajectorySetpoint(pos_ned_m=(float(x), float(y), float(z)))
+    ctx._sp_cache["pos"] = (key, sp)
+    return sp
+
+
+def descent_setpoint(
+    ctx: FlightContext, north_m: float, east_m: float, vel_down_m_s: float
+) -> TrajectorySetpoint:
+    """TrajectorySetpoint(pos_ned_m=(north, east, NaN), vel_ned_m_s=(NaN, NaN, v)), cached as position_setpoint."""
+    key = _PACK3(north_m, east_m, vel_down_m_s)
+    cached = ctx._sp_cache.get("descent")
+    if cached is not None and cached[0] == key:
+        return cached[1]
+    sp = TrajectorySetpoint(pos_ned_m=(north_m, east_m, NAN), vel_ned_m_s=(NAN, NAN, vel_down_m_s))
+    ctx._sp_cache["descent"] = (key, sp)
+    return sp
+
+
 def goto(ctx: FlightContext, dt: float, state: EavState, eav: EavParams, target: np.ndarray,
          yaw_target: float | None = None, yaw_rate_max: float = 0.0) -> EavCommand:  # fmt: skip
     """Fly to a NED position with the auto limits."""
-    sp = TrajectorySetpoint(pos_ned_m=(float(target[0]), float(target[1]), float(target[2])))
+    sp = position_setpoint(ctx, target)
     return run_position(ctx, dt, state, sp, auto_limits(ctx), eav, yaw_target, yaw_rate_max)

@@ -4,8 +4,7 @@ holding the horizontal position; also the final phase of RTL and of a mission LA
 from __future__ import annotations
 
 from viva_sitl.autopilot.context import FlightContext
-from viva_sitl.autopilot.control import TrajectorySetpoint
-from viva_sitl.autopilot.tasks.common import NAN, limits, run_position
+from viva_sitl.autopilot.tasks.common import descent_setpoint, limits, run_position
 from viva_sitl.dynamics import EavCommand, EavParams, EavState
 
 
@@ -26,7 +25,7 @@ def descend(
 ) -> EavCommand:
     """One step of a landing descent at the ground point `xy` (NED north, east)."""
     v = land_speed_m_s(ctx, state, eav)
-    sp = TrajectorySetpoint(pos_ned_m=(xy[0], xy[1], NAN), vel_ned_m_s=(NAN, NAN, v))
+    sp = descent_setpoint(ctx, xy[0], xy[1], v)
     lim = limits(ctx, xy=ctx.cruise(), down=max(v, 0.1), auto=True)
     return run_position(ctx, dt, state, sp, lim, eav, None, 0.0)
 

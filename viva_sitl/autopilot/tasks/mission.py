@@ -25,7 +25,15 @@ from viva_sitl.autopilot.mission import (
     validate_mission,
 )
 from viva_sitl.autopilot.payload import DistanceTrigger, item_effect
-from viva_sitl.autopilot.tasks.common import auto_limits, goto, idle, limits, run_position, yaw_rate_auto
+from viva_sitl.autopilot.tasks.common import (
+    auto_limits,
+    goto,
+    idle,
+    limits,
+    position_setpoint,
+    run_position,
+    yaw_rate_auto,
+)
 from viva_sitl.autopilot.tasks.land import descend
 from viva_sitl.autopilot.types import (
     ACCEPTED,
@@ -295,7 +303,7 @@ class MissionTask:
                 if state.landed:
                     return idle(ctx)
                 return descend(ctx, dt, state, eav, (float(target[0]), float(target[1])))
-            sp = TrajectorySetpoint(pos_ned_m=(float(target[0]), float(target[1]), float(target[2])))
+            sp = position_setpoint(ctx, target)
             return run_position(ctx, dt, state, sp, lim, eav, self._yaw(it, pos, target), yaw_rate_auto(ctx))
         # WAYPOINT / LOITER_TIME
         acc_rad = (
@@ -313,5 +321,5 @@ class MissionTask:
                 if not mp.finished:
                     return self.update(now_s, dt, state, eav, depth + 1)
         tgt = mp.target if mp.target is not None else target
-        sp = TrajectorySetpoint(pos_ned_m=(float(tgt[0]), float(tgt[1]), float(tgt[2])))
+        sp = position_setpoint(ctx, tgt)
         return run_position(ctx, dt, state, sp, lim, eav, self._yaw(it, pos, tgt), yaw_rate_auto(ctx))

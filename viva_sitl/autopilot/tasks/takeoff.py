@@ -5,8 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from viva_sitl.autopilot.context import FlightContext, Vec3
-from viva_sitl.autopilot.control import TrajectorySetpoint
-from viva_sitl.autopilot.tasks.common import limits, run_position
+from viva_sitl.autopilot.tasks.common import limits, position_setpoint, run_position
 from viva_sitl.autopilot.tasks.hold import HoldTask
 from viva_sitl.autopilot.types import FlightMode, Severity
 from viva_sitl.dynamics import EavCommand, EavParams, EavState
@@ -47,6 +46,6 @@ class TakeoffTask:
             self.target = None
             ctx.event(Severity.INFO, "Takeoff altitude reached, holding")
             return self.hold.update(now_s, dt, state, eav)
-        sp = TrajectorySetpoint(pos_ned_m=(float(t[0]), float(t[1]), float(t[2])))
+        sp = position_setpoint(self.ctx, t)
         lim = limits(ctx, xy=ctx.cruise(), up=ctx.params.get("MPC_TKO_SPEED"), auto=True)
         return run_position(ctx, dt, state, sp, lim, eav, None, 0.0)
