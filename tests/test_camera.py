@@ -432,6 +432,33 @@ def test_coverage_and_fill_outside_footage() -> None:
     assert not black.image_bgr.any()
 
 
+def test_coverage_shortcut_equals_the_clipped_polygon() -> None:
+    """The renderer's one-product shortcut (every image corner inside the footage, in front of the camera) gives
+    exactly the coverage the half-plane clipping gives, and only where nothing is behind the camera to paint."""
+    from viva_sitl.camera.projection import clip_convex_polygon, image_corners_px, polygon_area
+
+    rng = np.random.default_rng(3)
+    shortcuts = 0
+    for size in ((640, 480), (33, 17)):
+        p = CameraParams(width_px=size[0], height_px=size[1])
+        r = Renderer(p, GEOM_1080)
+        for _ in range(1500):
+            pos = (
+                rng.uniform(-120, 120),
+                rng.uniform(-200, 200),
+                -float(rng.choice([0.01, 5.0, 40.0, 300.0])),
+            )
+            att = rng.uniform(-1.3, 1.3, 3) * float(rng.choice([0.0, 0.05, 1.0]))
+            _, m = r.view_maps(pos, att, 1920, 1080)
+            planes = r._halfplanes(m, 1920, 1080)
+            clipped = clip_convex_polygon(image_corners_px(p), planes)
+            assert r.coverage(m, 1920, 1080) == min(1.0, polygon_area(clipped) / (size[0] * size[1]))
+            if r._sees_only_footage(planes):
+                shortcuts += 1
+                assert polygon_area(clip_convex_polygon(image_corners_px(p), [-m[2]])) == 0.0
+    assert shortcuts > 100  # the shortcut was exercised, not only the clipping
+
+
 def test_rays_above_horizon_are_filled_not_wrapped() -> None:
     footage = texture(1080, 1920, seed=11)
     p = CameraParams()

@@ -113,6 +113,10 @@ class Renderer:
         self._view: tuple[F64, F64] = (np.eye(3), np.eye(3))
         self._lod_key: tuple[object, ...] | None = None
         self._lod: tuple[int, float, float] = (0, 0.0, math.nan)
+        corners = image_corners_px(params)
+        self._corners_h = np.column_stack([corners, np.ones(4)])  # homogeneous image corners (pixel edges)
+        self._corners_abs = np.abs(self._corners_h)
+        self._full_coverage = min(1.0, polygon_area(corners) / float(params.width_px * params.height_px))
 
     def view_maps(
         self, pos_ned_m: ArrayLike, att_rpy_rad: ArrayLike, src_w: int, src_h: int
@@ -197,20 +201,34 @@ class Renderer:
         # a blend this small changes no pixel by a level: one warp
         return level, (blend if blend >= 1.0 / 512.0 else 0.0), rho
 
-    def coverage(self, vac_to_src: F64, src_w: int, src_h: int) -> float:
-        """Exact fraction of the (undistorted) VAC image whose rays hit the footage rectangle in front of the camera.
-
-        With w = m2 . p > 0, `lo <= (mi . p) / w <= hi` is linear in p, so the region is the image rectangle clipped
-        by five half-planes.
-        """
+    def _halfplanes(self, vac_to_src: F64, src_w: int, src_h: int) -> list[F64]:
         m = vac_to_src
-        halfplanes = [
+        return [
             m[2] - np.array([0.0, 0.0, _W_EPS]),
             m[0] + 0.5 * m[2],  # u >= -0.5
             (src_w - 0.5) * m[2] - m[0],  # u <= w - 0.5
             m[1] + 0.5 * m[2],
             (src_h - 0.5) * m[2] - m[1],
         ]
+
+    def _sees_only_footage(self, halfplanes: list[F64]) -> bool:
+        """True when all four image corners are strictly inside every half-plane, by a margin (1e-9 of the terms'
+        magnitude) far above the rounding of the two-term dot products: then `clip_convex_polygon` keeps the whole
+        image rectangle (every plane's `d >= 0` holds exactly as computed there) and no ray is at or above the
+        horizon. One 4x3 @ 3x5 product instead of the clipping loop (the common case: the view inside the frame)."""
+        a = np.column_stack(halfplanes)
+        d = self._corners_h @ a
+        return bool(np.all(d > 1e-9 * (self._corners_abs @ np.abs(a))))
+
+    def coverage(self, vac_to_src: F64, src_w: int, src_h: int) -> float:
+        """Exact fraction of the (undistorted) VAC image whose rays hit the footage rectangle in front of the camera.
+
+        With w = m2 . p > 0, `lo <= (mi . p) / w <= hi` is linear in p, so the region is the image rectangle clipped
+        by five half-planes.
+        """
+        halfplanes = self._halfplanes(vac_to_src, src_w, src_h)
+        if self._sees_only_footage(halfplanes):
+            return self._full_coverage  # what the clipping below returns for the unclipped rectangle
         poly = clip_convex_polygon(image_corners_px(self.params), halfplanes)
         return min(1.0, polygon_area(poly) / float(self.params.width_px * self.params.height_px))
 
@@ -239,7 +257,12 @@ class Renderer:
         shape = (p.height_px, p.width_px) + src0.shape[2:]
 
         # exact polygon coverage for the pinhole; with lens distortion it is counted per pixel below
-        coverage = self.coverage(vac_to_src, src_w, src_h) if self._und_map is None else -1.0
+        # (the common case, the view inside the frame, is one product: no clipping, nothing behind to paint)
+        inside = self._sees_only_footage(self._halfplanes(vac_to_src, src_w, src_h))
+        if self._und_map is not None:
+            coverage = -1.0
+        else:
+            coverage = self._full_coverage if inside else self.coverage(vac_to_src, src_w, src_h)
         if coverage == 0.0:
             image = np.empty(shape, np.uint8)
             image[...] = self._fill_u8[: image.shape[2]] if image.ndim == 3 else self._fill_u8[0]
@@ -257,7 +280,8 @@ class Renderer:
             else:
                 blend = 0.0
         if self._und_map is None:
-            self._fill_behind(image, vac_to_src)
+            if not inside:
+                self._fill_behind(image, vac_to_src)
         else:
             coverage = cov
 
