@@ -121,10 +121,8 @@ class Renderer:
         self._corners_h = np.column_stack([corners, np.ones(4)])  # homogeneous image corners (pixel edges)
         self._corners_abs = np.abs(self._corners_h)
         self._full_coverage = min(1.0, polygon_area(corners) / float(params.width_px * params.height_px))
-        wp, hp = (
-            params.width_px - 1.0,
-            params.height_px - 1.0,
-        )  # the corner pixels' centres (what the warp maps)
+        # the corner pixels' centres (what the warp maps)
+        wp, hp = params.width_px - 1.0, params.height_px - 1.0
         self._pixel_corners_h = np.array([[0.0, 0.0, 1.0], [wp, 0.0, 1.0], [wp, hp, 1.0], [0.0, hp, 1.0]])
         # level size -> (its BGRA copy for the 4-channel warp, pixels written into it), see `_bgra_source`
         self._bgra: dict[tuple[int, int], tuple[U8, int]] = {}
