@@ -487,6 +487,9 @@ def test_four_channel_warp_equals_the_three_channel_warp(monkeypatch: pytest.Mon
             assert plain._bgra == {}
             assert np.array_equal(got.image_bgr, want.image_bgr), (pos, att)
             assert got.coverage == want.coverage and got.lod_blend == want.lod_blend
+            monkeypatch.setattr(renderer_mod, "BGRA_MAX_READ_VIEWS", 4)
+            rgb = fast.render(pyr, pos, att, rgb=True, out=np.empty_like(want.image_bgr)).image_bgr
+            assert np.array_equal(rgb, want.image_bgr[:, :, ::-1])  # RGB order, converted once
     assert sum(used) > 40  # most poses took the 4-channel warp
 
 

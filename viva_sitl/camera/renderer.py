@@ -248,8 +248,13 @@ class Renderer:
         att_rpy_rad: ArrayLike,
         vel_ned_m_s: ArrayLike | None = None,
         rng: np.random.Generator | None = None,
+        rgb: bool = False,
+        out: U8 | None = None,
     ) -> RenderResult:
-        """Render the VAC at the vehicle pose. `pyramid`: a LazyPyramid (preferred), a list of levels or an image."""
+        """Render the VAC at the vehicle pose. `pyramid`: a LazyPyramid (preferred), a list of levels or an image.
+        `rgb`: return the image in RGB order (`image_bgr` then holds RGB), for callers that want RGB (the gym):
+        the 4-channel warp's output is converted once, straight to RGB. `out`: an array of the image's shape to
+        write the image into (returned as `image_bgr`)."""
         p = self.params
         pos = _vec3("pos_ned_m", pos_ned_m)
         att = _vec3("att_rpy_rad", att_rpy_rad)
@@ -275,16 +280,19 @@ class Renderer:
         if coverage == 0.0:
             image = np.empty(shape, np.uint8)
             image[...] = self._fill_u8[: image.shape[2]] if image.ndim == 3 else self._fill_u8[0]
-            return RenderResult(image, 0.0, h_f2i, 0, math.nan, cam_rot_body)
+            return RenderResult(self._to_order(image, rgb, out), 0.0, h_f2i, 0, math.nan, cam_rot_body)
 
         max_level = self._max_level(pyramid)
         level, blend, rho = self.choose_lod(vac_to_src, max_level)
         src, level = _level_image(pyramid, level)
-        image, cov = self._warp_level(src, src_w, src_h, vac_to_src)
+        # the 4-channel warp's BGRA output is kept to the end (blend and fill work per channel): one conversion
+        image, cov = self._warp_level(src, src_w, src_h, vac_to_src, keep_bgra=True)
         if blend > 0.0:
             src1, level1 = _level_image(pyramid, level + 1)
             if level1 == level + 1:
-                coarse, _ = self._warp_level(src1, src_w, src_h, vac_to_src)
+                coarse, _ = self._warp_level(src1, src_w, src_h, vac_to_src, keep_bgra=True)
+                if coarse.shape != image.shape:
+                    image, coarse = self._to_order(image, False), self._to_order(coarse, False)
                 image = np.asarray(cv2.addWeighted(image, 1.0 - blend, coarse, blend, 0.0), dtype=np.uint8)
             else:
                 blend = 0.0
@@ -295,15 +303,38 @@ class Renderer:
             coverage = cov
 
         if p.motion_blur and vel is not None and p.exposure_s > 0.0:
-            image = apply_motion_blur(image, self._blur_shift_px(pos, att, vel))
+            image = apply_motion_blur(self._to_order(image, False), self._blur_shift_px(pos, att, vel))
         if p.noise_std > 0.0 and rng is not None:
-            image = add_sensor_noise(image, p.noise_std, rng)
+            image = add_sensor_noise(self._to_order(image, False), p.noise_std, rng)
+        image = self._to_order(image, rgb, out)
         return RenderResult(
             np.asarray(image, dtype=np.uint8), coverage, h_f2i, level, rho, cam_rot_body, float(blend)
         )
 
-    def _warp_level(self, src: U8, src_w: int, src_h: int, vac_to_src: F64) -> tuple[U8, float]:
-        """The VAC image warped (bilinear) from one pyramid level, and its coverage with lens distortion (else -1)."""
+    @staticmethod
+    def _to_order(image: U8, rgb: bool, out: U8 | None = None) -> U8:
+        """A rendered image (BGR, BGRA from the 4-channel warp, or one channel) as BGR, or RGB with `rgb`; into
+        `out` when given."""
+        code = None
+        if image.ndim == 3 and image.shape[2] == 4:
+            code = cv2.COLOR_BGRA2RGB if rgb else cv2.COLOR_BGRA2BGR
+        elif rgb and image.ndim == 3 and image.shape[2] == 3:
+            code = cv2.COLOR_BGR2RGB
+        if code is None:
+            if out is None:
+                return image
+            out[...] = image
+            return out
+        if out is None:
+            return np.asarray(cv2.cvtColor(image, code), np.uint8)
+        cv2.cvtColor(image, code, dst=out)
+        return out
+
+    def _warp_level(
+        self, src: U8, src_w: int, src_h: int, vac_to_src: F64, keep_bgra: bool = False
+    ) -> tuple[U8, float]:
+        """The VAC image warped (bilinear) from one pyramid level, and its coverage with lens distortion (else -1).
+        `keep_bgra`: a 4-channel warp's output is returned as BGRA (else converted to BGR)."""
         p = self.params
         vac_to_level = level_from_source(src_w, src_h, int(src.shape[1]), int(src.shape[0])) @ vac_to_src
         if self._und_map is not None:
@@ -315,7 +346,8 @@ class Renderer:
                 flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
                 borderMode=cv2.BORDER_CONSTANT, borderValue=(*self._fill[:3], 0.0),
             )  # fmt: skip
-            return np.asarray(cv2.cvtColor(warped4, cv2.COLOR_BGRA2BGR), dtype=np.uint8), -1.0
+            bgra = np.asarray(warped4, dtype=np.uint8)
+            return (bgra if keep_bgra else self._to_order(bgra, False)), -1.0
         warped = cv2.warpPerspective(
             src, vac_to_level, (p.width_px, p.height_px),
             flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,

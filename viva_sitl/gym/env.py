@@ -244,13 +244,12 @@ class LandingEnv(gym.Env[Any, NDArray[np.float32]]):
     def view(self, out: NDArray[np.uint8] | None = None) -> NDArray[np.uint8]:
         """The VAC image as observed (RGB or grayscale HxWx1), one view (no stacking). `out`: an HxWx3 uint8
         C-contiguous array to convert the RGB view into (a vector env's batch slot: no second copy)."""
-        bgr = self.vehicle.render(wall_time_s=0.0).image_bgr
+        veh = self.vehicle
+        veh.apply_gimbal()  # as Vehicle.render
         if self.grayscale:
-            return np.asarray(cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY)[:, :, None], dtype=np.uint8)
-        if out is not None:
-            cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB, dst=out)
-            return out
-        return np.asarray(cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB), dtype=np.uint8)
+            rgb = veh.sim.render_rgb()  # the image only (no frame metadata), converted once to RGB
+            return np.asarray(cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)[:, :, None], dtype=np.uint8)
+        return veh.sim.render_rgb(out=out)
 
     def _obs(self, new_view: NDArray[np.uint8] | None = None) -> Any:
         state = self._state_vec(self.vehicle.state)
