@@ -491,6 +491,13 @@ def test_four_channel_warp_equals_the_three_channel_warp(monkeypatch: pytest.Mon
             rgb = fast.render(pyr, pos, att, rgb=True, out=np.empty_like(want.image_bgr)).image_bgr
             assert np.array_equal(rgb, want.image_bgr[:, :, ::-1])  # RGB order, converted once
     assert sum(used) > 40  # most poses took the 4-channel warp
+    # a view flying across the frame: the BGRA buffer is replaced before its written pages exceed the bound
+    r = Renderer(CameraParams(width_px=160, height_px=120), GEOM_1080)
+    pyr = LazyPyramid(footage)
+    for north in np.linspace(-60.0, 60.0, 40):
+        r.render(pyr, (north, 2.0 * north, -30.0), (0.0, 0.0, 0.3))
+        for _, (x0, y0, x1, y1) in r._bgra.values():
+            assert 0 < (x1 - x0) * (y1 - y0) <= renderer_mod.BGRA_RESET_VIEWS * 160 * 120
 
 
 def test_rays_above_horizon_are_filled_not_wrapped() -> None:

@@ -51,9 +51,10 @@ _W_EPS = 1e-9  # homogeneous w at or below this is treated as a ray at/above the
 # interchange sweep; -0.5 is above it at every ratio (bench/results_tiles.md, section 4)
 TRILINEAR_LOD_OFFSET = -0.5
 # the 4-channel warp (Renderer._bgra_source): used when the region it reads is at most this many views' pixels;
-# its buffer is replaced after this many views' pixels were written into it (bounds its resident memory)
+# its buffer is replaced once the bounding box of the regions written into it exceeds this many views' pixels
+# (bounds its resident memory to ~4 bytes x that; a hovering view rewrites one region and never resets)
 BGRA_MAX_READ_VIEWS = 4
-BGRA_RESET_VIEWS = 64
+BGRA_RESET_VIEWS = 8
 
 
 @dataclass(frozen=True)
@@ -124,8 +125,9 @@ class Renderer:
         # the corner pixels' centres (what the warp maps)
         wp, hp = params.width_px - 1.0, params.height_px - 1.0
         self._pixel_corners_h = np.array([[0.0, 0.0, 1.0], [wp, 0.0, 1.0], [wp, hp, 1.0], [0.0, hp, 1.0]])
-        # level size -> (its BGRA copy for the 4-channel warp, pixels written into it), see `_bgra_source`
-        self._bgra: dict[tuple[int, int], tuple[U8, int]] = {}
+        # level size -> (its BGRA copy for the 4-channel warp, bounding box x0, y0, x1, y1 of the pixels written
+        # into it), see `_bgra_source`
+        self._bgra: dict[tuple[int, int], tuple[U8, tuple[int, int, int, int]]] = {}
 
     def view_maps(
         self, pos_ned_m: ArrayLike, att_rpy_rad: ArrayLike, src_w: int, src_h: int
@@ -365,8 +367,8 @@ class Renderer:
         alone, so the first three channels equal the 3-channel warp bit for bit (tests/test_camera.py). The
         conversion covers only the read region (~0.05 ms for a 640x480 view at 1 footage px per VAC px). The buffer
         keeps the level's size (the warp's coordinates stay those of `src`) and is allocated lazily (np.empty: only
-        the pages written are resident); it is replaced once the regions written into it add up to
-        BGRA_RESET_VIEWS views (a long flight over a large frame would otherwise make all of it resident)."""
+        the pages written are resident); it is replaced once the bounding box of the regions written into it
+        exceeds BGRA_RESET_VIEWS views (a long flight over a large frame would otherwise make all of it resident)."""
         p = self.params
         c = self._pixel_corners_h @ vac_to_level.T
         w = c[:, 2]
@@ -384,14 +386,17 @@ class Renderer:
         view_area = p.width_px * p.height_px
         if area > BGRA_MAX_READ_VIEWS * view_area:
             return None
-        buf, written = self._bgra.get((lh, lw), (None, 0))
-        if buf is None or written + area > BGRA_RESET_VIEWS * view_area:
+        if area <= 0:
+            x0, y0, x1, y1 = lw, lh, 0, 0  # nothing to write (no pixel of src is read)
+        buf, (ux0, uy0, ux1, uy1) = self._bgra.get((lh, lw), (None, (lw, lh, 0, 0)))
+        ux0, uy0, ux1, uy1 = min(ux0, x0), min(uy0, y0), max(ux1, x1), max(uy1, y1)  # written since allocated
+        if buf is None or max(0, ux1 - ux0) * max(0, uy1 - uy0) > BGRA_RESET_VIEWS * view_area:
             if len(self._bgra) >= 4 and (lh, lw) not in self._bgra:
                 self._bgra.clear()
-            buf, written = np.empty((lh, lw, 4), np.uint8), 0
+            buf, (ux0, uy0, ux1, uy1) = np.empty((lh, lw, 4), np.uint8), (x0, y0, x1, y1)
         if area > 0:
             cv2.cvtColor(src[y0:y1, x0:x1], cv2.COLOR_BGR2BGRA, dst=buf[y0:y1, x0:x1])
-        self._bgra[(lh, lw)] = (buf, written + area)
+        self._bgra[(lh, lw)] = (buf, (ux0, uy0, ux1, uy1))
         return buf
 
     @staticmethod
