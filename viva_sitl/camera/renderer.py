@@ -54,7 +54,7 @@ TRILINEAR_LOD_OFFSET = -0.5
 # its buffer is replaced once the bounding box of the regions written into it exceeds this many views' pixels
 # (bounds its resident memory to ~4 bytes x that; a hovering view rewrites one region and never resets)
 BGRA_MAX_READ_VIEWS = 4
-BGRA_RESET_VIEWS = 8
+BGRA_RESET_VIEWS = 6
 
 
 @dataclass(frozen=True)
@@ -128,6 +128,7 @@ class Renderer:
         # level size -> (its BGRA copy for the 4-channel warp, bounding box x0, y0, x1, y1 of the pixels written
         # into it), see `_bgra_source`
         self._bgra: dict[tuple[int, int], tuple[U8, tuple[int, int, int, int]]] = {}
+        self._bgra_used: set[tuple[int, int]] = set()  # the level sizes the current frame warped from
 
     def view_maps(
         self, pos_ned_m: ArrayLike, att_rpy_rad: ArrayLike, src_w: int, src_h: int
@@ -288,6 +289,7 @@ class Renderer:
         level, blend, rho = self.choose_lod(vac_to_src, max_level)
         src, level = _level_image(pyramid, level)
         # the 4-channel warp's BGRA output is kept to the end (blend and fill work per channel): one conversion
+        self._bgra_used.clear()
         image, cov = self._warp_level(src, src_w, src_h, vac_to_src, keep_bgra=True)
         if blend > 0.0:
             src1, level1 = _level_image(pyramid, level + 1)
@@ -304,6 +306,8 @@ class Renderer:
         else:
             coverage = cov
 
+        for size in [k for k in self._bgra if k not in self._bgra_used]:
+            del self._bgra[size]  # a level this frame did not read: its buffer's pages go back
         if p.motion_blur and vel is not None and p.exposure_s > 0.0:
             image = apply_motion_blur(self._to_order(image, False), self._blur_shift_px(pos, att, vel))
         if p.noise_std > 0.0 and rng is not None:
@@ -391,12 +395,11 @@ class Renderer:
         buf, (ux0, uy0, ux1, uy1) = self._bgra.get((lh, lw), (None, (lw, lh, 0, 0)))
         ux0, uy0, ux1, uy1 = min(ux0, x0), min(uy0, y0), max(ux1, x1), max(uy1, y1)  # written since allocated
         if buf is None or max(0, ux1 - ux0) * max(0, uy1 - uy0) > BGRA_RESET_VIEWS * view_area:
-            if len(self._bgra) >= 4 and (lh, lw) not in self._bgra:
-                self._bgra.clear()
             buf, (ux0, uy0, ux1, uy1) = np.empty((lh, lw, 4), np.uint8), (x0, y0, x1, y1)
         if area > 0:
             cv2.cvtColor(src[y0:y1, x0:x1], cv2.COLOR_BGR2BGRA, dst=buf[y0:y1, x0:x1])
         self._bgra[(lh, lw)] = (buf, (ux0, uy0, ux1, uy1))
+        self._bgra_used.add((lh, lw))
         return buf
 
     @staticmethod
