@@ -432,6 +432,74 @@ def test_coverage_and_fill_outside_footage() -> None:
     assert not black.image_bgr.any()
 
 
+def test_coverage_shortcut_equals_the_clipped_polygon() -> None:
+    """The renderer's one-product shortcut (every image corner inside the footage, in front of the camera) gives
+    exactly the coverage the half-plane clipping gives, and only where nothing is behind the camera to paint."""
+    from viva_sitl.camera.projection import clip_convex_polygon, image_corners_px, polygon_area
+
+    rng = np.random.default_rng(3)
+    shortcuts = 0
+    for size in ((640, 480), (33, 17)):
+        p = CameraParams(width_px=size[0], height_px=size[1])
+        r = Renderer(p, GEOM_1080)
+        for _ in range(1500):
+            pos = (
+                rng.uniform(-120, 120),
+                rng.uniform(-200, 200),
+                -float(rng.choice([0.01, 5.0, 40.0, 300.0])),
+            )
+            att = rng.uniform(-1.3, 1.3, 3) * float(rng.choice([0.0, 0.05, 1.0]))
+            _, m = r.view_maps(pos, att, 1920, 1080)
+            planes = r._halfplanes(m, 1920, 1080)
+            clipped = clip_convex_polygon(image_corners_px(p), planes)
+            assert r.coverage(m, 1920, 1080) == min(1.0, polygon_area(clipped) / (size[0] * size[1]))
+            if r._sees_only_footage(planes):
+                shortcuts += 1
+                assert polygon_area(clip_convex_polygon(image_corners_px(p), [-m[2]])) == 0.0
+    assert shortcuts > 100  # the shortcut was exercised, not only the clipping
+
+
+def test_four_channel_warp_equals_the_three_channel_warp(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The renderer warps a BGRA copy of the region it reads (faster in OpenCV); the image is bit-identical to
+    the 3-channel warp, over and off the footage, tilted, trilinear (two levels) or not."""
+    import viva_sitl.camera.renderer as renderer_mod
+
+    footage = texture(1080, 1920, seed=12)
+    rng = np.random.default_rng(4)
+    poses = [
+        ((rng.uniform(-60, 60), rng.uniform(-120, 120), -rng.uniform(8.0, 400.0)), rng.uniform(-0.4, 0.4, 3))
+        for _ in range(40)
+    ] + [
+        ((0.0, GEOM_1080.ground_width_m / 2, -40.0), (0.2, -0.1, 0.9)),
+        ((-20.0, 0.0, -15.0), (0.0, 1.2, 0.0)),
+    ]
+    used = []
+    for params in (CameraParams(), CameraParams(width_px=160, height_px=120, trilinear=False)):
+        fast, plain = Renderer(params, GEOM_1080), Renderer(params, GEOM_1080)
+        pyr = LazyPyramid(footage)
+        for pos, att in poses:
+            monkeypatch.setattr(renderer_mod, "BGRA_MAX_READ_VIEWS", 4)
+            got = fast.render(pyr, pos, att)
+            used.append(bool(fast._bgra))
+            fast._bgra.clear()
+            monkeypatch.setattr(renderer_mod, "BGRA_MAX_READ_VIEWS", -1)  # never: the 3-channel warp
+            want = plain.render(pyr, pos, att)
+            assert plain._bgra == {}
+            assert np.array_equal(got.image_bgr, want.image_bgr), (pos, att)
+            assert got.coverage == want.coverage and got.lod_blend == want.lod_blend
+            monkeypatch.setattr(renderer_mod, "BGRA_MAX_READ_VIEWS", 4)
+            rgb = fast.render(pyr, pos, att, rgb=True, out=np.empty_like(want.image_bgr)).image_bgr
+            assert np.array_equal(rgb, want.image_bgr[:, :, ::-1])  # RGB order, converted once
+    assert sum(used) > 40  # most poses took the 4-channel warp
+    # a view flying across the frame: the BGRA buffer is replaced before its written pages exceed the bound
+    r = Renderer(CameraParams(width_px=160, height_px=120), GEOM_1080)
+    pyr = LazyPyramid(footage)
+    for north in np.linspace(-60.0, 60.0, 40):
+        r.render(pyr, (north, 2.0 * north, -30.0), (0.0, 0.0, 0.3))
+        for _, (x0, y0, x1, y1) in r._bgra.values():
+            assert 0 < (x1 - x0) * (y1 - y0) <= renderer_mod.BGRA_RESET_VIEWS * 160 * 120
+
+
 def test_rays_above_horizon_are_filled_not_wrapped() -> None:
     footage = texture(1080, 1920, seed=11)
     p = CameraParams()

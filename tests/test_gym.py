@@ -353,16 +353,21 @@ def test_state_only_observation_never_renders(monkeypatch: pytest.MonkeyPatch) -
     """The state-only variants never draw the VAC (the speed RL training needs); the image ones do."""
     calls: list[int] = []
     env = gym.make("viva_sitl/LandingStateVelocity-v0", spec=str(SYNTH_SPEC)).unwrapped
-    original = env.vehicle.sim.render
-    monkeypatch.setattr(env.vehicle.sim, "render", lambda *a, **k: calls.append(1) or original(*a, **k))
+    # every view (Simulator.render and the gym's render_rgb) is drawn by _render_image
+    original = env.vehicle.sim._render_image
+    monkeypatch.setattr(
+        env.vehicle.sim, "_render_image", lambda *a, **k: calls.append(1) or original(*a, **k)
+    )
     env.reset(seed=0)
     for _ in range(20):
         env.step(env.action_space.sample())
     env.reset()
     assert calls == []
     img = gym.make("viva_sitl/LandingVelocity-v0", spec=str(SYNTH_SPEC), **SMALL).unwrapped
-    original_img = img.vehicle.sim.render
-    monkeypatch.setattr(img.vehicle.sim, "render", lambda *a, **k: calls.append(1) or original_img(*a, **k))
+    original_img = img.vehicle.sim._render_image
+    monkeypatch.setattr(
+        img.vehicle.sim, "_render_image", lambda *a, **k: calls.append(1) or original_img(*a, **k)
+    )
     img.reset(seed=0)
     img.step(img.action_space.sample())
     assert len(calls) == 2

@@ -116,3 +116,18 @@ def test_make_vec_entry_point_over_synthetic_equals_single_envs() -> None:
     with pytest.raises(ValueError, match="finite"):
         venv.step(np.full((3, 4), np.nan))
     venv.close()
+
+
+@pytest.mark.parametrize("kw", [{"frame_stack": 2}, {"grayscale": True}, {"ground_truth_obs": True}],
+                         ids=["frame_stack", "grayscale", "ground_truth_obs"])  # fmt: skip
+def test_stacked_and_grayscale_views_equal_single_envs(kw: dict[str, Any]) -> None:
+    """The batch is assembled two ways (RGB views converted straight into their batch slots; stacked or grayscale
+    views copied in): both equal single envs, and each step's batch is a new array (earlier ones stay as returned)."""
+    kw = {"image_size": (32, 24), **kw}
+    n, steps = 2, 4
+    venv = SharedFootageVectorEnv(n, footage="synthetic", **kw)
+    obs = [venv.reset(seed=7)[0]]
+    for k in range(steps):
+        obs.append(venv.step(actions(n, k))[0])
+    check_equal(obs, singles("synthetic", 7, n, steps, **kw))
+    venv.close()

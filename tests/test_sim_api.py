@@ -151,3 +151,21 @@ def test_cli_errors_are_one_clear_line(tmp_path: Path) -> None:
     bad.write_text("[camera]\nwidth_px = -5\n")
     r = _cli("run", "--config", str(bad), "--no-video", "--duration", "1")
     assert r.returncode == 2 and "width_px" in r.stderr and "Traceback" not in r.stderr
+
+
+@pytest.mark.parametrize("camera", [{}, {"noise_std": 4.0}, {"width_px": 96, "height_px": 72}])
+def test_render_rgb_is_the_bgr_render_reversed(camera: dict[str, float]) -> None:
+    """Simulator.render_rgb (the gym's observation: one conversion, no frame metadata, optionally into a given
+    array) gives the pixels of render().image_bgr in RGB order, noise included, as the poses change."""
+    cfg = SimConfig.from_dict({"camera": camera})
+    with Simulator(cfg) as a, Simulator(cfg) as b:
+        for sim in (a, b):
+            sim.reset(seed=3, pos_ned_m=(5.0, -8.0, -30.0), yaw_rad=0.4)
+        for k in range(4):
+            for sim in (a, b):
+                sim.step(EavCommand(0.1, -0.05, 0.2, sim.params.hover_thrust_n * 0.9), n=25)
+            bgr = a.render().image_bgr
+            out = np.zeros_like(bgr) if k % 2 else None
+            rgb = b.render_rgb(out=out)
+            assert out is None or rgb is out
+            assert np.array_equal(rgb, bgr[:, :, ::-1]), k

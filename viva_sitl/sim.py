@@ -26,7 +26,9 @@ from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
 from typing import Protocol
 
+import cv2
 import numpy as np
+from numpy.typing import NDArray
 
 from viva_sitl.camera import (
     CameraParams,
@@ -339,7 +341,9 @@ class Simulator:
             self.footage.prefetch, index + 1, self._source_level_used
         )
 
-    def _render_ground_view(self, s: EavState) -> tuple[int, RenderResult]:
+    def _render_ground_view(
+        self, s: EavState, rgb: bool = False, out: NDArray[np.uint8] | None = None
+    ) -> tuple[int, RenderResult]:
         """An edgeless procedural ground (the synthetic field): render from a window drawn around the footprint."""
         assert isinstance(self.footage, SyntheticField)
         index = self.footage.frame_index_at(s.time_s + self.footage_offset_s)
@@ -360,27 +364,43 @@ class Simulator:
         self.renderer.geometry = geometry
         self.full_renders += 1
         return index, self.renderer.render(
-            self._pyramid, s.pos_ned_m, s.att_rpy_rad, s.vel_ned_m_s, self.camera_rng
+            self._pyramid, s.pos_ned_m, s.att_rpy_rad, s.vel_ned_m_s, self.camera_rng, rgb=rgb, out=out
         )
 
-    def _render_image(self, s: EavState) -> tuple[int, RenderResult]:
+    def _render_image(
+        self, s: EavState, rgb: bool = False, out: NDArray[np.uint8] | None = None
+    ) -> tuple[int, RenderResult]:
+        """(footage frame index, render result); `rgb`, `out`: the image in RGB order, written into `out` (see
+        Renderer.render)."""
         if self.footage.geometry.unbounded and isinstance(self.footage, SyntheticField):
-            return self._render_ground_view(s)
+            return self._render_ground_view(s, rgb, out)
         # --- super-resolution hook (issue 9): low flight renders from an upscaled crop of the full frame ---
         sr = self.super_resolution
         if sr is not None and sr.magnified(self.renderer, s.pos_ned_m, s.att_rpy_rad):
             index, pyramid = self.footage_frame(s.time_s + self.footage_offset_s)
             self.full_renders += 1
-            return index, sr.render(
+            res = sr.render(
                 self.renderer, pyramid.level(0), s.pos_ned_m, s.att_rpy_rad, s.vel_ned_m_s, self.camera_rng
             )
+            if rgb or out is not None:
+                img = (
+                    res.image_bgr
+                    if not rgb
+                    else np.asarray(cv2.cvtColor(res.image_bgr, cv2.COLOR_BGR2RGB), np.uint8)
+                )
+                if out is not None:
+                    out[...] = img
+                res = dataclasses.replace(res, image_bgr=img if out is None else out)
+            return index, res
         # --- end of the super-resolution hook ---
         index = self.footage.frame_index_at(s.time_s + self.footage_offset_s)
         planned = self._region_pyramid(index, s)
         if planned is not None:
             region, level = planned
             rng_state = self.camera_rng.bit_generator.state
-            result = self.renderer.render(region, s.pos_ned_m, s.att_rpy_rad, s.vel_ned_m_s, self.camera_rng)
+            result = self.renderer.render(
+                region, s.pos_ned_m, s.att_rpy_rad, s.vel_ned_m_s, self.camera_rng, rgb=rgb, out=out
+            )
             if result.coverage == 0.0 or result.pyramid_level == level:
                 self.region_renders += 1
                 return index, result
@@ -388,8 +408,20 @@ class Simulator:
         index, pyramid = self.footage_frame(s.time_s + self.footage_offset_s)
         self.full_renders += 1
         return index, self.renderer.render(
-            pyramid, s.pos_ned_m, s.att_rpy_rad, s.vel_ned_m_s, self.camera_rng
+            pyramid, s.pos_ned_m, s.att_rpy_rad, s.vel_ned_m_s, self.camera_rng, rgb=rgb, out=out
         )
+
+    def render_rgb(
+        self, state: EavState | None = None, out: NDArray[np.uint8] | None = None
+    ) -> NDArray[np.uint8]:
+        """The VAC view at `state` (default: the current state) as an RGB image only (no FrameMeta): the same
+        pixels as `render(...).image_bgr` reversed, one conversion less (for the gym's observations). `out`: an
+        (h, w, 3) uint8 array to write it into (a vector env's batch slot), returned."""
+        s = self.state if state is None else state
+        index, result = self._render_image(s, rgb=True, out=out)
+        self._prefetch_next(index)
+        self._frame_counter += 1
+        return result.image_bgr
 
     def render(self, state: EavState | None = None, wall_time_s: float | None = None) -> RenderedFrame:
         """Render the VAC view at `state` (default: the current state)."""

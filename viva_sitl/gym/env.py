@@ -224,6 +224,7 @@ class LandingEnv(gym.Env[Any, NDArray[np.float32]]):
 
         self.action_space = spaces.Box(-1.0, 1.0, shape=(4,), dtype=np.float32)
         state_space = spaces.Box(-np.inf, np.inf, shape=(len(self.state_fields),), dtype=np.float32)
+        self.image_size_hw = (h, w)
         c = (1 if grayscale else 3) * self.frame_stack
         image_space = spaces.Box(0, 255, shape=(h, w, c), dtype=np.uint8)
         self.observation_space: spaces.Space[Any] = (
@@ -238,6 +239,8 @@ class LandingEnv(gym.Env[Any, NDArray[np.float32]]):
         )
         # set by a vector env: (env, scenario) -> None picks the shared source and sets the footage offset
         self._binder: Callable[[LandingEnv, Scenario], None] | None = None
+        # set by a vector env before each observation (frame_stack 1, RGB): where to write the view
+        self._view_out: NDArray[np.uint8] | None = None
         self._yaw_cmd_rad = 0.0
         self._done = True
 
@@ -296,18 +299,22 @@ class LandingEnv(gym.Env[Any, NDArray[np.float32]]):
             person = (dn * f, de * f, min(d, r))
         return np.concatenate([risk.astype(np.float32), np.array(person, np.float32)])
 
-    def view(self) -> NDArray[np.uint8]:
-        """The VAC image as observed (RGB or grayscale HxWx1), one view (no stacking)."""
-        bgr = self.vehicle.render(wall_time_s=0.0).image_bgr
+    def view(self, out: NDArray[np.uint8] | None = None) -> NDArray[np.uint8]:
+        """The VAC image as observed (RGB or grayscale HxWx1), one view (no stacking). `out`: an HxWx3 uint8
+        C-contiguous array to convert the RGB view into (a vector env's batch slot: no second copy)."""
+        veh = self.vehicle
+        veh.apply_gimbal()  # as Vehicle.render
         if self.grayscale:
-            return np.asarray(cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY)[:, :, None], dtype=np.uint8)
-        return np.asarray(cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB), dtype=np.uint8)
+            rgb = veh.sim.render_rgb()  # the image only (no frame metadata), converted once to RGB
+            return np.asarray(cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)[:, :, None], dtype=np.uint8)
+        return veh.sim.render_rgb(out=out)
 
     def _obs(self, new_view: NDArray[np.uint8] | None = None) -> Any:
         state = self._state_vec(self.vehicle.state)
         if self.observation == "state":
             return state
-        self._frames.append(self.view() if new_view is None else new_view)
+        out, self._view_out = self._view_out, None  # one observation only
+        self._frames.append(self.view(out) if new_view is None else new_view)
         while len(self._frames) < self.frame_stack:
             self._frames.appendleft(self._frames[0])
         image = self._frames[0] if self.frame_stack == 1 else np.concatenate(list(self._frames), axis=2)

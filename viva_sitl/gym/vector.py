@@ -97,6 +97,7 @@ class SharedFootageVectorEnv(VectorEnv[Any, Any, Any]):
         self._global_k = 0  # control steps since the last reset() (the shared schedule and clock)
         self._global_steps = 0  # physics steps since then
         self._autoreset = np.zeros(self.num_envs, dtype=np.bool_)
+        self._direct_views = e0.observation == "image+state" and e0.frame_stack == 1 and not e0.grayscale
 
     # --- sharing ----------------------------------------------------------------------------------
     def _source_for(self, offset_s: float) -> FootageSource:
@@ -136,12 +137,14 @@ class SharedFootageVectorEnv(VectorEnv[Any, Any, Any]):
         self._global_k, self._global_steps = 0, 0
         infos: dict[str, Any] = {}
         obs = []
+        out = self._new_batch()
         for i in range(self.num_envs):
+            self._view_into(out, i)
             o, info = self.envs[i].reset(seed=seeds[i], options=options)
             obs.append(o)
             infos = self._add_info(infos, info, i)
         self._autoreset[:] = False
-        return self._batch(obs), infos
+        return self._batch(obs, out), infos
 
     def step(self, actions: Any) -> tuple[Any, NDArray[np.float64], NDArray[np.bool_], NDArray[np.bool_], dict[str, Any]]:  # fmt: skip
         a = np.asarray(actions, dtype=np.float64)
@@ -164,9 +167,11 @@ class SharedFootageVectorEnv(VectorEnv[Any, Any, Any]):
         self._global_k += 1
         order = sorted(range(self.num_envs), key=lambda j: id(self.envs[j].footage))
         self._convert_shared_frames(order, checked)
+        out = self._new_batch()
         for i in order:
             env = self.envs[i]
             c = checked[i]
+            self._view_into(out, i)
             if c is None:
                 obs[i], info = env.reset()
             else:
@@ -174,7 +179,7 @@ class SharedFootageVectorEnv(VectorEnv[Any, Any, Any]):
                 rewards[i], terminated[i], truncated[i] = r, term, trunc
             infos = self._add_info(infos, info, i)
         self._autoreset = terminated | truncated
-        return self._batch(obs), rewards, terminated, truncated, infos
+        return self._batch(obs, out), rewards, terminated, truncated, infos
 
     def _convert_shared_frames(self, order: list[int], checked: list[Any]) -> None:
         """Convert each shared video frame to BGR once when two or more copies will render it: their region reads
@@ -192,9 +197,32 @@ class SharedFootageVectorEnv(VectorEnv[Any, Any, Any]):
             if len(copies) >= 2:
                 self.envs[copies[0]].footage.frame(index)
 
-    def _batch(self, obs: list[Any]) -> Any:
-        out: Any = create_empty_array(self.single_observation_space, self.num_envs)
-        return concatenate(self.single_observation_space, obs, out)
+    def _new_batch(self) -> Any:
+        """A new batched observation to fill (each step's is the caller's to keep). With one RGB view per copy
+        (frame_stack 1) the copies convert their views straight into its image slots (`LandingEnv.view(out=)`)."""
+        for env in self.envs:
+            env._view_out = None  # none left over from a step that raised
+        if not self._direct_views:
+            return None
+        e0 = self.envs[0]
+        h, w = e0.image_size_hw
+        return {"image": np.empty((self.num_envs, h, w, 3), np.uint8),
+                "state": np.empty((self.num_envs, len(e0.state_fields)), np.float32)}  # fmt: skip
+
+    def _view_into(self, out: Any, i: int) -> None:
+        if out is not None:
+            self.envs[i]._view_out = out["image"][i]
+
+    def _batch(self, obs: list[Any], out: Any = None) -> Any:
+        if out is None:
+            out = create_empty_array(self.single_observation_space, self.num_envs)
+            return concatenate(self.single_observation_space, obs, out)
+        images = out["image"]
+        for i, o in enumerate(obs):
+            if o["image"].ctypes.data != images[i].ctypes.data:
+                images[i] = o["image"]  # not written in place
+        np.stack([o["state"] for o in obs], out=out["state"])
+        return out
 
     def render(self) -> tuple[NDArray[np.uint8], ...] | None:
         if self.render_mode is None:
