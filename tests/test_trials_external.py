@@ -255,7 +255,7 @@ def test_pilot_that_never_lands_is_stopped_at_the_wall_limit_with_its_processes(
 
     def run() -> None:
         box["camp"] = run_campaign(spec, f"{{python}} {script} {{pymavlink_url}}", tmp_path / "out", jobs=1,
-                                   progress=False, wall_limit_s=45.0)  # fmt: skip
+                                   progress=False, wall_limit_s=25.0)  # fmt: skip
 
     th = threading.Thread(target=run)
     th.start()
