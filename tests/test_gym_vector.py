@@ -131,7 +131,8 @@ def test_batched_action_check_acts_as_each_copys_own() -> None:
     obs, _, _, _, info = venv.step(a)
     assert info["action_clipped"].tolist() == [False, True, False]
     s_obs, _, _, _, s_info = single.step(a[1])
-    assert s_info["action_clipped"] and np.array_equal(obs[1], s_obs)  # the clipped row flies as the single env's
+    # the clipped row flies as the single env's
+    assert s_info["action_clipped"] and np.array_equal(obs[1], s_obs)
     t0 = [e.vehicle.time_s for e in venv.envs]
     bad = a.copy()
     bad[2, 1] = np.inf
