@@ -96,7 +96,13 @@ def main() -> None:
     ap.add_argument("--cache-dir", type=Path, default=core.DEFAULT_CACHE)
     ap.add_argument("--markdown", type=Path, default=None)
     ap.add_argument("--json", type=Path, default=None)
+    ap.add_argument("--cv-threads", type=int, default=None,
+                    help="cv2.setNumThreads for this process (default: OpenCV's own); the reference is unchanged")  # fmt: skip
     args = ap.parse_args()
+    if args.cv_threads is not None:
+        import cv2
+
+        cv2.setNumThreads(args.cv_threads)
     clip = core.make_clip(args.cache_dir, 60, rel_alt_m=core.DEFAULT_REL_ALT_M)
     if args.footage == "tiles":
         import bench_tiles
@@ -141,7 +147,8 @@ def main() -> None:
             "cost_vs_single_wall": w / single_w, "cost_vs_single_cpu": c / single_c,
             "x_ref_steps_per_s": (med["ref"][0] / w) if "ref" in med else None,
         })  # fmt: skip
-    head = (f"footage: {args.footage} ({footage}), view {args.image_size}, z {args.z} m, {args.steps} steps per run, "
+    cv = "" if args.cv_threads is None else f", cv2 threads {args.cv_threads}"
+    head = (f"footage: {args.footage} ({footage}), view {args.image_size}, z {args.z} m{cv}, {args.steps} steps per run, "
             f"{args.rounds} rounds, machine: {os.cpu_count()} cores, load per round: {'; '.join(loads)}")  # fmt: skip
     lines = [head, "", "| variant | env steps/s | wall ms / env step | CPU ms / env step | cost vs single (wall) "
              "| cost vs single (CPU) | steps/s vs ref |", "|---|---:|---:|---:|---:|---:|---:|"]  # fmt: skip

@@ -118,6 +118,37 @@ def test_make_vec_entry_point_over_synthetic_equals_single_envs() -> None:
     venv.close()
 
 
+def test_batched_action_check_acts_as_each_copys_own() -> None:
+    """The vector env checks the whole action batch at once: out-of-range rows are clipped and flagged per copy
+    (as LandingEnv.step does), a non-finite row or, with out_of_range="raise", an out-of-range row raises the single
+    env's ValueError and steps no copy."""
+    kw: dict[str, Any] = {"image_size": (32, 24), "observation": "state"}
+    venv = SharedFootageVectorEnv(3, footage="synthetic", **kw)
+    venv.reset(seed=2)
+    single = LandingEnv("synthetic", **kw)
+    single.reset(seed=3)
+    a = np.array([[0.0, 0.0, 0.0, 0.0], [1.5, -2.0, 0.0, 0.2], [0.1, 0.0, 0.0, 0.0]])
+    obs, _, _, _, info = venv.step(a)
+    assert info["action_clipped"].tolist() == [False, True, False]
+    s_obs, _, _, _, s_info = single.step(a[1])
+    # the clipped row flies as the single env's
+    assert s_info["action_clipped"] and np.array_equal(obs[1], s_obs)
+    t0 = [e.vehicle.time_s for e in venv.envs]
+    bad = a.copy()
+    bad[2, 1] = np.inf
+    with pytest.raises(ValueError, match="finite"):
+        venv.step(bad)
+    assert [e.vehicle.time_s for e in venv.envs] == t0  # nothing stepped
+    venv.close()
+    strict = SharedFootageVectorEnv(2, footage="synthetic", out_of_range="raise", **kw)
+    strict.reset(seed=0)
+    with pytest.raises(ValueError, match=r"out of \[-1, 1\]"):
+        strict.step(np.array([[0.0, 0.0, 0.0, 0.0], [0.0, 1.01, 0.0, 0.0]]))
+    strict.step(np.zeros((2, 4)))
+    strict.close()
+    single.close()
+
+
 @pytest.mark.parametrize("kw", [{"frame_stack": 2}, {"grayscale": True}, {"ground_truth_obs": True}],
                          ids=["frame_stack", "grayscale", "ground_truth_obs"])  # fmt: skip
 def test_stacked_and_grayscale_views_equal_single_envs(kw: dict[str, Any]) -> None:

@@ -33,7 +33,9 @@ MIN_CAMERA_HEIGHT_M = 0.01
 
 def _vec3(name: str, value: ArrayLike) -> F64:
     a = np.asarray(value, dtype=np.float64).reshape(-1)
-    if a.shape != (3,) or not np.all(np.isfinite(a)):
+    # the finiteness test on the three Python floats: the renderer calls this ~7 times per view, where
+    # np.all(np.isfinite(a)) costs ~3 us against ~0.3 us
+    if a.shape != (3,) or not all(map(math.isfinite, a.tolist())):
         raise ValueError(f"{name} must be 3 finite numbers, got {value!r}")
     return a
 

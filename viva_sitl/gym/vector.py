@@ -27,7 +27,7 @@ Autoreset: gymnasium's NEXT_STEP mode (the step after a terminated/truncated one
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 from gymnasium.vector import AutoresetMode, VectorEnv
@@ -150,9 +150,7 @@ class SharedFootageVectorEnv(VectorEnv[Any, Any, Any]):
         a = np.asarray(actions, dtype=np.float64)
         if a.shape != (self.num_envs, 4):
             raise ValueError(f"actions must have shape ({self.num_envs}, 4), got {a.shape}")
-        checked = [
-            None if self._autoreset[i] else self.envs[i]._check_action(a[i]) for i in range(self.num_envs)
-        ]
+        checked = self._check_actions(a)
         # physics of every copy first, then the views grouped by footage source (each frame decoded once)
         for i, env in enumerate(self.envs):
             c = checked[i]
@@ -180,6 +178,22 @@ class SharedFootageVectorEnv(VectorEnv[Any, Any, Any]):
             infos = self._add_info(infos, info, i)
         self._autoreset = terminated | truncated
         return self._batch(obs, out), rewards, terminated, truncated, infos
+
+    def _check_actions(self, a: NDArray[np.float64]) -> list[tuple[NDArray[np.float64], bool] | None]:
+        """LandingEnv._check_action of each copy's row (None for a copy that autoresets this step), tested for the
+        whole batch at once: two numpy reductions per vector step instead of two per copy. A row that fails (not
+        finite, or out of range with out_of_range="raise") goes through the copy's own check for its error."""
+        finite = cast(list[bool], np.isfinite(a).all(axis=1).tolist())
+        over = cast(list[bool], (np.abs(a) > 1.0).any(axis=1).tolist())
+        checked: list[tuple[NDArray[np.float64], bool] | None] = []
+        for i, env in enumerate(self.envs):
+            if self._autoreset[i]:
+                checked.append(None)
+            elif not finite[i] or (over[i] and env.out_of_range == "raise"):
+                checked.append(env._check_action(a[i]))  # raises ValueError with the single env's message
+            else:
+                checked.append((np.clip(a[i], -1.0, 1.0), True) if over[i] else (a[i], False))
+        return checked
 
     def _convert_shared_frames(self, order: list[int], checked: list[Any]) -> None:
         """Convert each shared video frame to BGR once when two or more copies will render it: their region reads
