@@ -18,7 +18,6 @@ import signal
 import sys
 import time
 from pathlib import Path
-from typing import Any
 
 import cv2
 
@@ -29,7 +28,7 @@ from viva_sitl.dashboard.config import DashboardConfig
 from viva_sitl.dashboard.layers import world_layers
 from viva_sitl.dashboard.overview import LayerProvider
 from viva_sitl.dashboard.server import Dashboard
-from viva_sitl.dynamics import EavState
+from viva_sitl.dynamics import EavState, floats3
 from viva_sitl.evaluation.monitor import Limits
 from viva_sitl.evaluation.session import ScenarioSession, read_scenario_file, scenario_config
 from viva_sitl.evaluation.spec import Scenario
@@ -59,10 +58,6 @@ def _world_layers_of(cfg: SimConfig) -> list[LayerProvider]:
         log.warning("dashboard: no ground-truth layers (%s)", exc)
         return []
     return world_layers(world)
-
-
-def _floats3(v: Any) -> tuple[float, float, float]:
-    return float(v[0]), float(v[1]), float(v[2])
 
 
 class SitlApp:
@@ -205,9 +200,9 @@ class SitlApp:
         self.trajectory.add(
             Sample(
                 float(s.time_s),
-                _floats3(s.pos_ned_m),
-                _floats3(s.vel_ned_m_s),
-                _floats3(s.att_rpy_rad),
+                floats3(s.pos_ned_m),
+                floats3(s.vel_ned_m_s),
+                floats3(s.att_rpy_rad),
                 ap.mode.name,
                 bool(ap.armed),
                 ap.landed_state.name,

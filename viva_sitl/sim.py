@@ -41,7 +41,7 @@ from viva_sitl.camera import (
 from viva_sitl.camera.projection import cam_rot_ned, camera_center_ned
 from viva_sitl.camera.pyramid import RegionPyramid
 from viva_sitl.config import SimConfig
-from viva_sitl.dynamics import EavCommand, EavParams, EavState, step
+from viva_sitl.dynamics import EavCommand, EavParams, EavState, floats3, step
 from viva_sitl.footage import FootageSource, open_footage
 from viva_sitl.footage.source import VideoSource
 from viva_sitl.footage.synthetic import SyntheticField
@@ -70,10 +70,6 @@ class MagnifiedRenderLike(Protocol):
         vel_ned_m_s: np.ndarray | None = None,
         rng: np.random.Generator | None = None,
     ) -> RenderResult: ...
-
-
-def _tuple3(a: np.ndarray) -> tuple[float, float, float]:
-    return (float(a[0]), float(a[1]), float(a[2]))
 
 
 class Simulator:
@@ -436,23 +432,23 @@ class Simulator:
         wall = time.time() if wall_time_s is None else wall_time_s
         index, result = self._render_image(s)
         self._prefetch_next(index)
-        lat, lon, alt = self.geo.ned_to_global(*_tuple3(s.pos_ned_m))
+        lat, lon, alt = self.geo.ned_to_global(*floats3(s.pos_ned_m))
         if self._fields_camera is not self.camera:
-            self._intrinsics_k = tuple(_tuple3(row) for row in camera_intrinsics(self.camera))
-            self._cam_pos_body_m = _tuple3(np.asarray(camera_extrinsics(self.camera)[1]))
+            self._intrinsics_k = tuple(floats3(row) for row in camera_intrinsics(self.camera))
+            self._cam_pos_body_m = floats3(np.asarray(camera_extrinsics(self.camera)[1]))
             self._fields_camera = self.camera
         meta = FrameMeta(
             frame_counter=self._frame_counter,
             sim_time_s=s.time_s,
             wall_time_s=wall,
-            pos_ned_m=_tuple3(s.pos_ned_m),
-            att_rpy_rad=_tuple3(s.att_rpy_rad),
-            vel_ned_m_s=_tuple3(s.vel_ned_m_s),
+            pos_ned_m=floats3(s.pos_ned_m),
+            att_rpy_rad=floats3(s.att_rpy_rad),
+            vel_ned_m_s=floats3(s.vel_ned_m_s),
             footage_frame_index=index,
             width_px=self.camera.width_px,
             height_px=self.camera.height_px,
             intrinsics_k=self._intrinsics_k,
-            cam_rot_body=tuple(_tuple3(row) for row in result.cam_rot_body),  # gimbal-aware
+            cam_rot_body=tuple(floats3(row) for row in result.cam_rot_body),  # gimbal-aware
             cam_pos_body_m=self._cam_pos_body_m,
             coverage=float(result.coverage),
             lat_deg=lat,

@@ -17,7 +17,7 @@ from typing import cast
 import numpy as np
 from numpy.typing import NDArray
 
-from viva_sitl.dynamics import wrap_pi
+from viva_sitl.dynamics import floats3, wrap_pi
 
 Vec3 = NDArray[np.float64]
 _NAN3 = (math.nan, math.nan, math.nan)
@@ -171,8 +171,7 @@ class PositionController:
 
     @vel_int_m_s2.setter
     def vel_int_m_s2(self, value: Vec3) -> None:
-        v = np.asarray(value, dtype=np.float64).reshape(3)
-        self._int = (float(v[0]), float(v[1]), float(v[2]))
+        self._int = floats3(value)
 
     @property
     def last_vel_sp_ned_m_s(self) -> Vec3:
@@ -181,8 +180,7 @@ class PositionController:
 
     @last_vel_sp_ned_m_s.setter
     def last_vel_sp_ned_m_s(self, value: Vec3) -> None:
-        v = np.asarray(value, dtype=np.float64).reshape(3)
-        self._last = (float(v[0]), float(v[1]), float(v[2]))
+        self._last = floats3(value)
 
     def reset(self) -> None:
         self._int = (0.0, 0.0, 0.0)

@@ -3,7 +3,7 @@
 from viva_sitl.dynamics.eav import disturbance_force_n, paper_update, step
 from viva_sitl.dynamics.params import EavParams, WindParams
 from viva_sitl.dynamics.rotation import euler_from_quat, quat_from_euler, rot_body_to_ned, wrap_pi
-from viva_sitl.dynamics.state import EavCommand, EavState, vec3
+from viva_sitl.dynamics.state import EavCommand, EavState, floats3, vec3
 
 __all__ = [
     "EavCommand",
@@ -16,6 +16,7 @@ __all__ = [
     "quat_from_euler",
     "rot_body_to_ned",
     "step",
+    "floats3",
     "vec3",
     "wrap_pi",
 ]

@@ -3,9 +3,20 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
+
+
+def floats3(x: object) -> tuple[float, float, float]:
+    """The three components of a 3-vector (array, list, tuple) as Python floats."""
+    v: Any = x  # a flat array, tuple or list as it is (the render path calls this per frame); anything else reshaped
+    if not (
+        (isinstance(v, np.ndarray) and v.shape == (3,)) or (isinstance(v, (tuple, list)) and len(v) == 3)
+    ):
+        v = np.asarray(x, dtype=np.float64).reshape(3)
+    return float(v[0]), float(v[1]), float(v[2])
 
 
 def vec3(x: object) -> NDArray[np.float64]:
