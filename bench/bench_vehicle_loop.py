@@ -128,6 +128,9 @@ def main() -> int:
     ap.add_argument("--steps", type=int, default=2500)
     ap.add_argument("--json", action="store_true", help="(internal) measure this PYTHONPATH once, print JSON")
     args = ap.parse_args()
+    for tree in (args.base, args.new):
+        if tree is not None and not (tree / "viva_sitl" / "__init__.py").is_file():
+            ap.error(f"{tree} is not a viva-sitl source tree (no viva_sitl/__init__.py)")
     if args.json:
         print(json.dumps(run_here(args.steps)))
         return 0

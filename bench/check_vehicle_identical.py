@@ -353,6 +353,9 @@ def main() -> int:
     ap.add_argument("--trial-footage", type=Path, help="also compare an in-process landing trial's files over this "
                     "footage (e.g. /tmp/viva-sitl-bench/interchange_3840x2160_60f_tiles_jpeg)")  # fmt: skip
     args = ap.parse_args()
+    for tree in (args.base, args.new):
+        if tree is not None and not (tree / "viva_sitl" / "__init__.py").is_file():
+            ap.error(f"{tree} is not a viva-sitl source tree (no viva_sitl/__init__.py)")
     if args.record:
         record(args.record, args.trial_footage)
         return 0

@@ -797,3 +797,28 @@ def test_limits_follow_parameter_changes() -> None:
     assert limits(ctx, xy=1.5, up=0.7, auto=False).vel_up_m_s == 0.7
     ctx.params.set("SIM_MASS", 2.0 * ctx.params.get("SIM_MASS"))  # a new airframe object
     assert auto_limits(ctx).thrust_max_n == ctx.eav_params().max_thrust_n != first.thrust_max_n
+
+
+def test_failsafe_quiet_implies_evaluate_does_nothing() -> None:
+    """The 250 Hz shortcut (failsafe.quiet) repeats evaluate()'s loss conditions; over random inputs, whenever it
+    says quiet, evaluate (no footage/fence test this step) returns no action and the same flags."""
+    from viva_sitl.autopilot.failsafe import FailsafeFlags, FailsafeInputs, evaluate, quiet
+
+    rng = np.random.default_rng(7)
+    p = ParamStore()
+    modes = list(FlightMode)
+    said_quiet = 0
+    for _ in range(4000):
+        now = float(rng.uniform(0.0, 20.0))
+        mode = modes[int(rng.integers(len(modes)))]
+        off_last, gcs_last = now - float(rng.uniform(0.0, 8.0)), now - float(rng.uniform(0.0, 8.0))
+        gcs_seen, armed, fresh = (bool(b) for b in rng.integers(0, 2, 3))
+        flags = FailsafeFlags(dll_lost=bool(rng.integers(0, 2)), rc_lost_handled=bool(rng.integers(0, 2)))
+        if not quiet(now, mode, off_last, gcs_seen, gcs_last, flags, p):
+            continue
+        said_quiet += 1
+        inp = FailsafeInputs(now_s=now, mode=mode, armed=armed, in_air=armed, offboard_last_s=off_last,
+                             manual_fresh=fresh, gcs_seen=gcs_seen, gcs_last_s=gcs_last, inside=None,
+                             pos_ned_m=(0.0, 0.0, -10.0))  # fmt: skip
+        assert evaluate(inp, flags, p) == (flags, []), (inp, flags)
+    assert said_quiet > 500  # the shortcut was exercised, not just skipped
