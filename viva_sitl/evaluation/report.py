@@ -86,7 +86,8 @@ def read_results(out_dir: str | Path) -> dict[str, Any]:
 
 def _png(fig: Any) -> str:
     buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=100, bbox_inches="tight")
+    # zlib level 1: ~25 % less time per figure than the default 6, for a PNG ~10-20 % bigger (plots, few colours)
+    fig.savefig(buf, format="png", dpi=100, bbox_inches="tight", pil_kwargs={"compress_level": 1})
     import matplotlib.pyplot as plt
 
     plt.close(fig)
@@ -183,7 +184,9 @@ def figure_distributions(rows: list[Row], criterion: dict[str, Any] | None) -> s
             if lim is not None:
                 ax.axvline(float(lim), color="#d73027", ls="--", lw=1)
         ax.set_title(label, fontsize=9)
-    fig.tight_layout()
+    # fixed margins: tight_layout measured every tick label (~0.2 s of the report's ~1 s); bbox_inches="tight" in
+    # _png still trims the outer margin
+    fig.subplots_adjust(left=0.04, right=0.99, bottom=0.06, top=0.94, wspace=0.22, hspace=0.35)
     return _png(fig)
 
 

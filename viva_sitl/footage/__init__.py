@@ -18,7 +18,6 @@ serialised, never corrupt.
 """
 
 from viva_sitl.footage.annotations import Annotation
-from viva_sitl.footage.cli import footage_main
 from viva_sitl.footage.errors import FootageError
 from viva_sitl.footage.geometry import FootageGeometry
 from viva_sitl.footage.loader import open_footage, resolve_metadata
@@ -26,6 +25,15 @@ from viva_sitl.footage.metadata import AnnotationFormat, CatalogSpec, FootageKin
 from viva_sitl.footage.source import FootageSource, StillSource, VideoSource
 from viva_sitl.footage.srt import SrtSample, SrtTrack, parse_srt, parse_srt_text
 from viva_sitl.footage.synthetic import GroundObject, MarkerSpec, SyntheticField, SyntheticFieldParams
+
+
+def footage_main(argv: list[str]) -> int:
+    """`viva-sitl footage ...` (viva_sitl.footage.cli), imported on call: the CLI's catalog/download/ingest modules
+    (~70 ms) stay out of every process that only flies over footage (each trial worker imports this package)."""
+    from viva_sitl.footage.cli import footage_main as main
+
+    return main(argv)
+
 
 __all__ = [
     "Annotation",
