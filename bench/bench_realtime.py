@@ -252,8 +252,15 @@ def main() -> int:
     )
     ap.add_argument("--clip-frames", type=int, default=60, help="frames of the generated 4K clip")
     ap.add_argument("--json", type=Path, help="write the figures here as JSON")
+    ap.add_argument("--tile-cache-mb", type=float, default=2.0,
+                    help="decoded-tile LRU of the `viva-sitl run` ($VIVA_SITL_TILE_CACHE_MB; 256 = the library "
+                         "default): the bench clips loop, and a cap that holds a loop's tiles serves every later "
+                         "loop from memory, which footage longer than the cap never gets")  # fmt: skip
     ap.add_argument("--client", nargs=2, metavar=("SDP", "OUT"), help=argparse.SUPPRESS)
     args = ap.parse_args()
+    if not args.tile_cache_mb > 0:
+        ap.error("--tile-cache-mb must be > 0")
+    os.environ["VIVA_SITL_TILE_CACHE_MB"] = f"{args.tile_cache_mb:g}"  # the viva-sitl run child inherits it
     if args.client:
         return run_client(*args.client)
 

@@ -150,6 +150,31 @@ def test_tile_source_frames_equal_the_video_and_the_lru_is_capped(
         small.close()
 
 
+def test_tile_cache_size_from_the_environment(
+    caches: dict[str, Path], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """$VIVA_SITL_TILE_CACHE_MB caps the decoded-tile LRU of every source opened after it is set (trial workers
+    inherit it); a bad value is one FootageError naming the variable."""
+    monkeypatch.setenv("VIVA_SITL_TILE_CACHE_MB", "0.5")
+    src = open_footage(str(caches["raw"]))
+    try:
+        assert isinstance(src, TileSource)
+        assert src.cache.cache_bytes == 1 << 19
+        for i in range(FRAMES):
+            src.frame(i)  # whole frames: far more than 0.5 MiB of tiles
+            assert src.cache.lru_bytes <= 1 << 19 or len(src.cache._lru) == 1
+        decoded = src.cache.tiles_decoded
+        src.frame(0)  # evicted long ago: decoded again
+        assert src.cache.tiles_decoded > decoded
+    finally:
+        src.close()
+    for bad in ("0", "-3", "lots", "nan"):
+        monkeypatch.setenv("VIVA_SITL_TILE_CACHE_MB", bad)
+        with pytest.raises(FootageError, match="VIVA_SITL_TILE_CACHE_MB") as err:
+            open_footage(str(caches["raw"]))
+        assert "\n" not in str(err.value)
+
+
 def _frames(clip: Path, n: int, fail_after: int | None = None) -> Iterator[np.ndarray]:
     with open_footage(str(clip), altitude_m=ALT_M, hfov_deg=HFOV) as v:
         for i in range(n):

@@ -341,10 +341,13 @@ def run_campaign(
 
         bar = tqdm(total=len(scenarios), initial=len(camp.rows), unit="trial", desc=f"{spec.name} [{pilot}]",
                    dynamic_ncols=True)  # fmt: skip
-    # the report draws with matplotlib (~0.6 s of CPU + font-cache reads to import): import it while the trials fly,
-    # where the parent only waits on its workers, not after the last one
+    # the report draws with matplotlib (~0.6 s of CPU + font-cache reads to import): import it while the last trials
+    # fly, once fewer trials are left than cores (a core is then idle), not after the last one; nor at the start of a
+    # campaign that fills every core, where it would take CPU from the workers' own start-up
     preload = threading.Thread(target=_preload_report_modules, name="viva-report-preload", daemon=True)
-    if todo:
+    cores = os.cpu_count() or 1
+    left = len(todo)
+    if 0 < min(left, jobs) < cores:
         preload.start()
     if backend == "local":
         gen = _local(spec, pilot, todo, out, jobs, video, limit)
@@ -354,6 +357,9 @@ def run_campaign(
         raise ValueError(f"unknown backend {backend!r} (local, ray)")
     try:
         for idx, row in gen:
+            left -= 1
+            if 0 < min(left, jobs) < cores and preload.ident is None:
+                preload.start()
             camp.rows[idx] = row
             _save_row(out, by_index[idx], row)
             if on_row is not None:

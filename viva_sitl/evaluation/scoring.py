@@ -7,7 +7,8 @@ null = unavailable, never zero):
     start_north_m, start_east_m, start_altitude_m, start_yaw_deg, footage_time_s, land_at_s, wind_speed_m_s,
     failures                                            injected failures, "kind@t_s;..."
     end                                                 landed | crash | left_footage | timeout | pilot_error |
-                                                        wall_timeout | pilot_exited | sitl_error
+                                                        wall_timeout | sitl_error | sitl_stopped | aborted |
+                                                        worker_died | trial_error (docs/trials-results.md)
     end_detail, end_t_s                                 why, and when (s after the start)
     landed                                              true when end == landed (touchdown + disarm)
     touchdown_north_m, touchdown_east_m                 the last touchdown (null: none)

@@ -4,7 +4,9 @@ Every footage frame is stored as its full mip-map pyramid (level 0 = the decoded
 halving of the previous one, exactly as `viva_sitl.camera.LazyPyramid` builds it), each level cut into
 `tile_px` x `tile_px` tiles, each tile intra-coded on its own (as map tile servers and cloud-optimised GeoTIFFs do).
 A render decodes only the tiles under the VAC's footprint at the level(s) it samples; decoded tiles are kept in an
-LRU with a byte cap.
+LRU with a byte cap (256 MiB; `$VIVA_SITL_TILE_CACHE_MB` sets it for a process and the trial workers it starts).
+Across frames the LRU only pays off when frames repeat (a still, or a short clip that loops inside a trial); over a
+clip longer than the cap every frame's tiles are decoded afresh.
 
 Layout of a cache folder (built by `viva-sitl footage ingest --tiles`, see `build_tile_cache`):
 
@@ -26,6 +28,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import math
 import os
 import sys
 import threading
@@ -58,6 +61,25 @@ DEFAULT_JPEG_QUALITY = 95
 # qualities tried, best first, when the size bound would be exceeded at the asked one
 JPEG_FALLBACK_QUALITIES = (95, 92, 90, 85, 80, 75, 70, 60, 50)
 DEFAULT_CACHE_BYTES = 256 << 20  # decoded-tile LRU cap
+CACHE_ENV = (
+    "VIVA_SITL_TILE_CACHE_MB"  # overrides it (MiB) for every tile source of the process and its children
+)
+
+
+def default_cache_bytes() -> int:
+    """The decoded-tile LRU cap: $VIVA_SITL_TILE_CACHE_MB (MiB, > 0) or DEFAULT_CACHE_BYTES."""
+    raw = os.environ.get(CACHE_ENV, "").strip()
+    if not raw:
+        return DEFAULT_CACHE_BYTES
+    try:
+        mb = float(raw)
+    except ValueError:
+        mb = math.nan
+    if not (math.isfinite(mb) and mb > 0):
+        raise FootageError(f"${CACHE_ENV}={raw!r}: give the decoded-tile cache size in MiB (a number > 0)")
+    return max(1, int(mb * (1 << 20)))
+
+
 PACK_BYTES = 1 << 30  # start a new pack file beyond this size
 COMMIT_FRAMES = 4  # progress.json is rewritten (and packs flushed) every this many frames
 INDEX_DTYPE = np.dtype(
@@ -159,7 +181,8 @@ def encode_frame(
 class TileCache:
     """Read access to one tile cache folder (`<folder>/tiles`), with an LRU of decoded tiles."""
 
-    def __init__(self, folder: Path, cache_bytes: int = DEFAULT_CACHE_BYTES, decode_threads: int = 2) -> None:
+    def __init__(self, folder: Path, cache_bytes: int | None = None, decode_threads: int = 2) -> None:
+        cap = default_cache_bytes() if cache_bytes is None else int(cache_bytes)  # before any file is opened
         self.folder = Path(folder)
         self.dir = self.folder / TILES_SUBDIR
         self._rebuild = f"rebuild it with `viva-sitl footage ingest --tiles` (or delete {self.folder})"
@@ -204,7 +227,7 @@ class TileCache:
             if path.stat().st_size < need:
                 raise self._error(f"{path.name} is truncated ({path.stat().st_size} of {need} bytes)")
             self._packs.append(open(path, "rb"))  # noqa: SIM115 - kept open for the cache's life
-        self.cache_bytes = int(cache_bytes)
+        self.cache_bytes = cap
         self._lru: OrderedDict[tuple[int, int], U8] = OrderedDict()
         self._lru_bytes = 0
         self._lock = threading.Lock()
@@ -387,7 +410,7 @@ class TileSource(FootageSource):
         metadata: FootageMetadata,
         folder: Path,
         geometry_factory: Callable[[int, int], FootageGeometry],
-        cache_bytes: int = DEFAULT_CACHE_BYTES,
+        cache_bytes: int | None = None,
     ) -> None:
         self.metadata = metadata
         self.cache = TileCache(folder, cache_bytes)
