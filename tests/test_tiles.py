@@ -154,7 +154,8 @@ def test_tile_cache_size_from_the_environment(
     caches: dict[str, Path], monkeypatch: pytest.MonkeyPatch
 ) -> None:
     """$VIVA_SITL_TILE_CACHE_MB caps the decoded-tile LRU of every source opened after it is set (trial workers
-    inherit it); a bad value is one FootageError naming the variable."""
+    inherit it), $VIVA_SITL_TILE_DECODE_THREADS sets its decode threads; a bad value is one FootageError naming
+    the variable."""
     monkeypatch.setenv("VIVA_SITL_TILE_CACHE_MB", "0.5")
     src = open_footage(str(caches["raw"]))
     try:
@@ -172,6 +173,26 @@ def test_tile_cache_size_from_the_environment(
         monkeypatch.setenv("VIVA_SITL_TILE_CACHE_MB", bad)
         with pytest.raises(FootageError, match="VIVA_SITL_TILE_CACHE_MB") as err:
             open_footage(str(caches["raw"]))
+        assert "\n" not in str(err.value)
+    monkeypatch.delenv("VIVA_SITL_TILE_CACHE_MB")
+    # decode threads (the trials' pool sets 1 per worker when the workers fill the cores): same frames either way
+    pooled = open_footage(str(caches["jpeg"]))
+    try:
+        assert isinstance(pooled, TileSource) and pooled.cache._pool is not None  # default: 2 threads
+        monkeypatch.setenv("VIVA_SITL_TILE_DECODE_THREADS", "1")
+        one = open_footage(str(caches["jpeg"]))
+        try:
+            assert isinstance(one, TileSource) and one.cache._pool is None
+            for i in range(FRAMES):
+                assert np.array_equal(one.frame(i), pooled.frame(i))
+        finally:
+            one.close()
+    finally:
+        pooled.close()
+    for bad in ("0", "two", "-1", "1.5"):
+        monkeypatch.setenv("VIVA_SITL_TILE_DECODE_THREADS", bad)
+        with pytest.raises(FootageError, match="VIVA_SITL_TILE_DECODE_THREADS") as err:
+            open_footage(str(caches["jpeg"]))
         assert "\n" not in str(err.value)
 
 

@@ -110,8 +110,23 @@ def failed_row(spec: TrialSpec, scenario: Scenario, end: str, detail: str) -> Ro
 # ----------------------------------------------------------------------------------------- local pool
 
 
-def _worker(slot: int, conn: Connection, results: Any, spec: TrialSpec, pilot: str, out_dir: str, video: bool) -> None:  # fmt: skip
+def _share_cores(threads: int) -> None:
+    """A trial worker's footage decode threads: the cores left to it. With as many workers as cores, a tile
+    cache's decode pool only adds hand-offs (measured: 6-trial jpeg-tile campaigns 8-10 % faster with 1)."""
+    from viva_sitl.footage.tiles import DECODE_THREADS_ENV
+
+    os.environ.setdefault(DECODE_THREADS_ENV, str(threads))  # the user's own setting wins
+
+
+def _ray_one(spec: TrialSpec, scenario: Scenario, pilot: str, out_dir: Path, slot: int, video: bool) -> Row:
+    _share_cores(1)  # the task reserved one CPU (num_cpus=1)
+    return run_one(spec, scenario, pilot, out_dir, slot, video)
+
+
+def _worker(slot: int, conn: Connection, results: Any, spec: TrialSpec, pilot: str, out_dir: str, video: bool,
+            threads: int = 1) -> None:  # fmt: skip
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent handles Ctrl-C and stops us with SIGTERM
+    _share_cores(threads)
 
     def _term(*_: object) -> None:
         raise SystemExit(143)  # unwinds: the trial's finally blocks end the processes it started
@@ -144,10 +159,11 @@ def _local(spec: TrialSpec, pilot: str, todo: list[Scenario], out_dir: Path, job
     queue = list(todo)
     by_index = {s.index: s for s in todo}
     slots: dict[int, _Slot] = {}
+    threads = max(1, (os.cpu_count() or 1) // max(1, jobs))
 
     def start(slot: int) -> _Slot:
         parent, child = ctx.Pipe()
-        p = ctx.Process(target=_worker, args=(slot, child, results, spec, pilot, str(out_dir), video),
+        p = ctx.Process(target=_worker, args=(slot, child, results, spec, pilot, str(out_dir), video, threads),
                         name=f"viva-trial-{slot}", daemon=True)  # fmt: skip
         p.start()
         child.close()
@@ -226,7 +242,7 @@ def _ray(spec: TrialSpec, pilot: str, todo: list[Scenario], out_dir: Path, jobs:
         ray.init(address=address, include_dashboard=False, log_to_driver=False)
         started = True
     try:
-        task = ray.remote(num_cpus=1, max_retries=0)(run_one)
+        task = ray.remote(num_cpus=1, max_retries=0)(_ray_one)
         queue = list(todo)
         running: dict[Any, tuple[int, float]] = {}
         slot = 0

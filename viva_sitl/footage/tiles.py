@@ -61,9 +61,22 @@ DEFAULT_JPEG_QUALITY = 95
 # qualities tried, best first, when the size bound would be exceeded at the asked one
 JPEG_FALLBACK_QUALITIES = (95, 92, 90, 85, 80, 75, 70, 60, 50)
 DEFAULT_CACHE_BYTES = 256 << 20  # decoded-tile LRU cap
-CACHE_ENV = (
-    "VIVA_SITL_TILE_CACHE_MB"  # overrides it (MiB) for every tile source of the process and its children
-)
+# overrides it (MiB) for every tile source of the process and its children
+CACHE_ENV = "VIVA_SITL_TILE_CACHE_MB"
+DEFAULT_DECODE_THREADS = 2
+# overrides it for every tile source of the process and its children: the trials' pool sets it to the cores per
+# worker (1 when the workers fill the cores: handing ~2 misses per frame to a pool there costs more than it overlaps)
+DECODE_THREADS_ENV = "VIVA_SITL_TILE_DECODE_THREADS"
+
+
+def default_decode_threads() -> int:
+    """Threads that decode one region's missing tiles: $VIVA_SITL_TILE_DECODE_THREADS (>= 1) or 2."""
+    raw = os.environ.get(DECODE_THREADS_ENV, "").strip()
+    if not raw:
+        return DEFAULT_DECODE_THREADS
+    if not raw.isdigit() or int(raw) < 1:
+        raise FootageError(f"${DECODE_THREADS_ENV}={raw!r}: give a whole number of threads >= 1")
+    return int(raw)
 
 
 def default_cache_bytes() -> int:
@@ -181,8 +194,12 @@ def encode_frame(
 class TileCache:
     """Read access to one tile cache folder (`<folder>/tiles`), with an LRU of decoded tiles."""
 
-    def __init__(self, folder: Path, cache_bytes: int | None = None, decode_threads: int = 2) -> None:
-        cap = default_cache_bytes() if cache_bytes is None else int(cache_bytes)  # before any file is opened
+    def __init__(
+        self, folder: Path, cache_bytes: int | None = None, decode_threads: int | None = None
+    ) -> None:
+        # environment defaults first: a bad value fails before any file is opened
+        cap = default_cache_bytes() if cache_bytes is None else int(cache_bytes)
+        threads = default_decode_threads() if decode_threads is None else int(decode_threads)
         self.folder = Path(folder)
         self.dir = self.folder / TILES_SUBDIR
         self._rebuild = f"rebuild it with `viva-sitl footage ingest --tiles` (or delete {self.folder})"
@@ -235,8 +252,8 @@ class TileCache:
         self.tile_hits = 0
         # cv2.imdecode releases the GIL: misses of one region are decoded in parallel
         self._pool = (
-            ThreadPoolExecutor(decode_threads, thread_name_prefix="viva-sitl-tile-decode")
-            if decode_threads > 1 and self.codec != "raw"
+            ThreadPoolExecutor(threads, thread_name_prefix="viva-sitl-tile-decode")
+            if threads > 1 and self.codec != "raw"
             else None
         )
 
