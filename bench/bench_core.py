@@ -77,6 +77,24 @@ SONGDO_REL_ALT_M = 3840 * 0.05 / (2.0 * math.tan(math.radians(DEFAULT_HFOV_DEG /
 # ---------------------------------------------------------------------------------------------- footage
 
 
+def add_tile_cache_arg(ap: argparse.ArgumentParser) -> None:
+    """`--tile-cache-mb` of the benches that fly over tile caches (see `apply_tile_cache`)."""
+    ap.add_argument(
+        "--tile-cache-mb", type=float, default=2.0,
+        help="decoded-tile LRU in MiB ($VIVA_SITL_TILE_CACHE_MB, inherited by child processes; 256 = the library "
+             "default). The bench clips are 30-60 frames and loop: a cap that holds a loop's tiles serves every "
+             "later loop from memory, which footage longer than the cap never gets; 2 MiB (~10 tiles of 256 px) "
+             "keeps no tile from one frame to the next, so every frame is decoded as over a real clip",
+    )  # fmt: skip
+
+
+def apply_tile_cache(ap: argparse.ArgumentParser, args: argparse.Namespace) -> None:
+    """Check `--tile-cache-mb` (one argparse error line) and set it for this process and its children."""
+    if not (math.isfinite(args.tile_cache_mb) and args.tile_cache_mb > 0):
+        ap.error("--tile-cache-mb must be a number > 0")
+    os.environ["VIVA_SITL_TILE_CACHE_MB"] = f"{args.tile_cache_mb:g}"
+
+
 def make_clip(
     cache_dir: Path, frames: int, width: int = 3840, height: int = 2160, rel_alt_m: float = 471.0
 ) -> Path:

@@ -240,6 +240,8 @@ def stream_figures(
 
 # ---------------------------------------------------------------------------------------------------- main
 def main() -> int:
+    from bench_core import add_tile_cache_arg, apply_tile_cache
+
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--duration", type=float, default=600.0, help="wall seconds of the run after ready")
     ap.add_argument("--speed", type=float, default=1.0)
@@ -252,15 +254,10 @@ def main() -> int:
     )
     ap.add_argument("--clip-frames", type=int, default=60, help="frames of the generated 4K clip")
     ap.add_argument("--json", type=Path, help="write the figures here as JSON")
-    ap.add_argument("--tile-cache-mb", type=float, default=2.0,
-                    help="decoded-tile LRU of the `viva-sitl run` ($VIVA_SITL_TILE_CACHE_MB; 256 = the library "
-                         "default): the bench clips loop, and a cap that holds a loop's tiles serves every later "
-                         "loop from memory, which footage longer than the cap never gets")  # fmt: skip
+    add_tile_cache_arg(ap)  # the viva-sitl run child inherits it
     ap.add_argument("--client", nargs=2, metavar=("SDP", "OUT"), help=argparse.SUPPRESS)
     args = ap.parse_args()
-    if not args.tile_cache_mb > 0:
-        ap.error("--tile-cache-mb must be > 0")
-    os.environ["VIVA_SITL_TILE_CACHE_MB"] = f"{args.tile_cache_mb:g}"  # the viva-sitl run child inherits it
+    apply_tile_cache(ap, args)
     if args.client:
         return run_client(*args.client)
 

@@ -318,15 +318,9 @@ def main() -> int:
     ap.add_argument("--json", type=Path)
     ap.add_argument("--child-mem", type=Path, help=argparse.SUPPRESS)
     ap.add_argument("--cap-mib", type=int, default=256, help=argparse.SUPPRESS)
-    ap.add_argument("--tile-cache-mb", type=float, default=2.0,
-                    help="decoded-tile LRU for steps/scale ($VIVA_SITL_TILE_CACHE_MB; 256 = the library default). "
-                         "The bench clips are 30-60 frames and loop: with a cap that holds a loop's tiles every "
-                         "later loop is served from the LRU, which footage longer than the cap never gets; 2 MiB "
-                         "(~10 tiles) keeps no tile from one frame to the next")  # fmt: skip
+    core.add_tile_cache_arg(ap)  # steps and scale; mem sets its own caps
     args = ap.parse_args()
-    if not args.tile_cache_mb > 0:
-        ap.error("--tile-cache-mb must be > 0")
-    os.environ["VIVA_SITL_TILE_CACHE_MB"] = f"{args.tile_cache_mb:g}"
+    core.apply_tile_cache(ap, args)
     if args.child_mem:
         child_mem(args.child_mem, args.cap_mib)
         return 0

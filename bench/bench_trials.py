@@ -52,6 +52,7 @@ REPO = Path(__file__).resolve().parents[1]
 if str(REPO) not in sys.path:  # the pilot class below is imported by name in the pool's workers
     sys.path.insert(0, str(REPO))
 
+import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
 from viva_sitl.dynamics import EavCommand  # noqa: E402
@@ -102,8 +103,6 @@ READ_ENV = "VIVA_BENCH_READ"  # the pool's workers inherit it
 
 
 def read_cv2(img: Any) -> float:
-    import cv2
-
     return float(sum(cv2.mean(img)[:3]) / 3.0)
 
 
@@ -219,6 +218,8 @@ def per_hour(r: dict[str, Any]) -> tuple[float, float]:
 
 
 def main() -> int:
+    from bench.bench_core import DEFAULT_CACHE, add_tile_cache_arg, apply_tile_cache, make_clip
+
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--trials", type=int, default=4, help="trials per side per round")
     ap.add_argument("--jobs", type=int, default=os.cpu_count() or 1)
@@ -230,17 +231,13 @@ def main() -> int:
     ap.add_argument(
         "--variants", nargs="+", default=["video", "tiles"], choices=["video", "tiles", "tiles-raw"]
     )
-    ap.add_argument("--tile-cache-mb", type=float, default=2.0,
-                    help="decoded-tile LRU of our trial workers (see above; 256 = the library's default)")  # fmt: skip
     ap.add_argument("--no-floor", action="store_true", help="skip the floor measurement")
+    add_tile_cache_arg(ap)  # the pool's workers inherit it
     ap.add_argument("--read", choices=["cv2", "numpy"], default="cv2",
                     help="how both sides' pilots read each frame (see above)")  # fmt: skip
     args = ap.parse_args()
     os.environ[READ_ENV] = args.read
-    if not args.tile_cache_mb > 0:
-        ap.error("--tile-cache-mb must be > 0")
-    os.environ["VIVA_SITL_TILE_CACHE_MB"] = f"{args.tile_cache_mb:g}"  # the pool's workers inherit it
-    from bench.bench_core import DEFAULT_CACHE, make_clip
+    apply_tile_cache(ap, args)
     from bench.bench_tiles import make_tiles
 
     clip = make_clip(DEFAULT_CACHE, args.frames)

@@ -150,6 +150,18 @@ def test_tile_source_frames_equal_the_video_and_the_lru_is_capped(
         small.close()
 
 
+def _refused_in_one_line(
+    monkeypatch: pytest.MonkeyPatch, var: str, bad: tuple[str, ...], folder: Path
+) -> None:
+    """Opening `folder` with each bad value of $var is one FootageError line naming the variable."""
+    for value in bad:
+        monkeypatch.setenv(var, value)
+        with pytest.raises(FootageError, match=var) as err:
+            open_footage(str(folder))
+        assert "\n" not in str(err.value)
+    monkeypatch.delenv(var)
+
+
 def test_tile_cache_size_from_the_environment(
     caches: dict[str, Path], monkeypatch: pytest.MonkeyPatch
 ) -> None:
@@ -169,12 +181,7 @@ def test_tile_cache_size_from_the_environment(
         assert src.cache.tiles_decoded > decoded
     finally:
         src.close()
-    for bad in ("0", "-3", "lots", "nan"):
-        monkeypatch.setenv("VIVA_SITL_TILE_CACHE_MB", bad)
-        with pytest.raises(FootageError, match="VIVA_SITL_TILE_CACHE_MB") as err:
-            open_footage(str(caches["raw"]))
-        assert "\n" not in str(err.value)
-    monkeypatch.delenv("VIVA_SITL_TILE_CACHE_MB")
+    _refused_in_one_line(monkeypatch, "VIVA_SITL_TILE_CACHE_MB", ("0", "-3", "lots", "nan"), caches["raw"])
     # decode threads (the trials' pool sets 1 per worker when the workers fill the cores): same frames either way
     pooled = open_footage(str(caches["jpeg"]))
     try:
@@ -189,11 +196,9 @@ def test_tile_cache_size_from_the_environment(
             one.close()
     finally:
         pooled.close()
-    for bad in ("0", "two", "-1", "1.5"):
-        monkeypatch.setenv("VIVA_SITL_TILE_DECODE_THREADS", bad)
-        with pytest.raises(FootageError, match="VIVA_SITL_TILE_DECODE_THREADS") as err:
-            open_footage(str(caches["jpeg"]))
-        assert "\n" not in str(err.value)
+    _refused_in_one_line(
+        monkeypatch, "VIVA_SITL_TILE_DECODE_THREADS", ("0", "two", "-1", "1.5"), caches["jpeg"]
+    )
 
 
 def _frames(clip: Path, n: int, fail_after: int | None = None) -> Iterator[np.ndarray]:

@@ -124,7 +124,7 @@ def _ray_one(spec: TrialSpec, scenario: Scenario, pilot: str, out_dir: Path, slo
 
 
 def _worker(slot: int, conn: Connection, results: Any, spec: TrialSpec, pilot: str, out_dir: str, video: bool,
-            threads: int = 1) -> None:  # fmt: skip
+            threads: int) -> None:  # fmt: skip
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent handles Ctrl-C and stops us with SIGTERM
     _share_cores(threads)
 
@@ -362,9 +362,13 @@ def run_campaign(
     # campaign that fills every core, where it would take CPU from the workers' own start-up
     preload = threading.Thread(target=_preload_report_modules, name="viva-report-preload", daemon=True)
     cores = os.cpu_count() or 1
-    left = len(todo)
-    if 0 < min(left, jobs) < cores:
-        preload.start()
+    left = len(todo)  # trials not finished yet
+
+    def preload_if_a_core_is_idle() -> None:
+        if 0 < min(left, jobs) < cores and preload.ident is None:
+            preload.start()
+
+    preload_if_a_core_is_idle()
     if backend == "local":
         gen = _local(spec, pilot, todo, out, jobs, video, limit)
     elif backend == "ray":
@@ -374,8 +378,7 @@ def run_campaign(
     try:
         for idx, row in gen:
             left -= 1
-            if 0 < min(left, jobs) < cores and preload.ident is None:
-                preload.start()
+            preload_if_a_core_is_idle()
             camp.rows[idx] = row
             _save_row(out, by_index[idx], row)
             if on_row is not None:

@@ -61,38 +61,6 @@ DEFAULT_JPEG_QUALITY = 95
 # qualities tried, best first, when the size bound would be exceeded at the asked one
 JPEG_FALLBACK_QUALITIES = (95, 92, 90, 85, 80, 75, 70, 60, 50)
 DEFAULT_CACHE_BYTES = 256 << 20  # decoded-tile LRU cap
-# overrides it (MiB) for every tile source of the process and its children
-CACHE_ENV = "VIVA_SITL_TILE_CACHE_MB"
-DEFAULT_DECODE_THREADS = 2
-# overrides it for every tile source of the process and its children: the trials' pool sets it to the cores per
-# worker (1 when the workers fill the cores: handing ~2 misses per frame to a pool there costs more than it overlaps)
-DECODE_THREADS_ENV = "VIVA_SITL_TILE_DECODE_THREADS"
-
-
-def default_decode_threads() -> int:
-    """Threads that decode one region's missing tiles: $VIVA_SITL_TILE_DECODE_THREADS (>= 1) or 2."""
-    raw = os.environ.get(DECODE_THREADS_ENV, "").strip()
-    if not raw:
-        return DEFAULT_DECODE_THREADS
-    if not raw.isdigit() or int(raw) < 1:
-        raise FootageError(f"${DECODE_THREADS_ENV}={raw!r}: give a whole number of threads >= 1")
-    return int(raw)
-
-
-def default_cache_bytes() -> int:
-    """The decoded-tile LRU cap: $VIVA_SITL_TILE_CACHE_MB (MiB, > 0) or DEFAULT_CACHE_BYTES."""
-    raw = os.environ.get(CACHE_ENV, "").strip()
-    if not raw:
-        return DEFAULT_CACHE_BYTES
-    try:
-        mb = float(raw)
-    except ValueError:
-        mb = math.nan
-    if not (math.isfinite(mb) and mb > 0):
-        raise FootageError(f"${CACHE_ENV}={raw!r}: give the decoded-tile cache size in MiB (a number > 0)")
-    return max(1, int(mb * (1 << 20)))
-
-
 PACK_BYTES = 1 << 30  # start a new pack file beyond this size
 COMMIT_FRAMES = 4  # progress.json is rewritten (and packs flushed) every this many frames
 INDEX_DTYPE = np.dtype(
@@ -101,6 +69,43 @@ INDEX_DTYPE = np.dtype(
 _RAW_MAGIC = b"RAWT"
 # full-resolution chroma: 4:2:0 costs 4-7 dB on sharp coarse levels (bench/results_tiles.md) for ~30 % less size
 _JPEG_444 = (cv2.IMWRITE_JPEG_SAMPLING_FACTOR, cv2.IMWRITE_JPEG_SAMPLING_FACTOR_444)
+
+# Environment overrides for every tile source of a process and its children (the trials' pool sets the decode
+# threads per worker: 1 when the workers fill the cores, where handing ~2 misses per frame to a pool costs more than
+# it overlaps). A bad value is one FootageError, raised before any file is opened.
+CACHE_ENV = "VIVA_SITL_TILE_CACHE_MB"
+DECODE_THREADS_ENV = "VIVA_SITL_TILE_DECODE_THREADS"
+DEFAULT_DECODE_THREADS = 2
+
+
+def _from_env(
+    name: str, parse: Callable[[str], float], valid: Callable[[float], bool], what: str
+) -> float | None:
+    """$name parsed, None when unset or blank; a value that does not parse or is not `valid` is one error line."""
+    raw = os.environ.get(name, "").strip()
+    if not raw:
+        return None
+    try:
+        value = parse(raw)
+    except ValueError:
+        value = math.nan
+    if not valid(value):
+        raise FootageError(f"${name}={raw!r}: give {what}")
+    return value
+
+
+def default_cache_bytes() -> int:
+    """The decoded-tile LRU cap: $VIVA_SITL_TILE_CACHE_MB (MiB, > 0) or DEFAULT_CACHE_BYTES."""
+    mb = _from_env(
+        CACHE_ENV, float, lambda v: math.isfinite(v) and v > 0, "the decoded-tile cache size in MiB (> 0)"
+    )
+    return DEFAULT_CACHE_BYTES if mb is None else max(1, int(mb * (1 << 20)))
+
+
+def default_decode_threads() -> int:
+    """Threads that decode one region's missing tiles: $VIVA_SITL_TILE_DECODE_THREADS (>= 1) or 2."""
+    n = _from_env(DECODE_THREADS_ENV, int, lambda v: v >= 1, "a whole number of threads >= 1")
+    return DEFAULT_DECODE_THREADS if n is None else int(n)
 
 
 @dataclass(frozen=True)
