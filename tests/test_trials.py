@@ -6,6 +6,7 @@ from __future__ import annotations
 import csv
 import json
 import math
+import os
 import subprocess
 import sys
 import time
@@ -108,6 +109,22 @@ def test_bad_spec_file_from_cli_is_one_line(tmp_path: Path) -> None:
     assert r.returncode == 2
     assert r.stderr.strip().splitlines() == [f"viva-sitl trials: {p}.trials.colour: unknown key (known: name, n, "
                                               "seed, timeout_s, pilot, speed, end_outside_s, crash_speed_m_s, log_hz, frames)"]  # fmt: skip
+
+
+@pytest.mark.parametrize(
+    ("var", "value"), [("VIVA_SITL_TILE_CACHE_MB", "lots"), ("VIVA_SITL_TILE_DECODE_THREADS", "0")]
+)
+def test_bad_tile_environment_fails_the_campaign_up_front(tmp_path: Path, var: str, value: str) -> None:
+    spec = tmp_path / "short.toml"
+    spec.write_text('[trials]\nn = 2\npilot = "descend"\n')
+    out = tmp_path / "o"
+    r = subprocess.run([sys.executable, "-m", "viva_sitl", "trials", "run", str(spec), "-o", str(out)],
+                       capture_output=True, text=True, timeout=120, cwd=REPO,
+                       env={**os.environ, var: value})  # fmt: skip
+    assert r.returncode == 2
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"viva-sitl trials: ${var}={value!r}: give "), r.stderr
+    assert not (out / "results.json").exists()  # no trial ran, none was recorded as failed
 
 
 def test_scenarios_are_a_function_of_seed_and_index() -> None:

@@ -330,10 +330,13 @@ def run_campaign(
     """Run (or resume) a campaign and write results.json / results.csv / report.html to out_dir. Ctrl-C keeps the
     finished trials (reports written for them) and re-raises KeyboardInterrupt after that."""
     from viva_sitl.evaluation.report import write_reports
+    from viva_sitl.footage.tiles import default_cache_bytes, default_decode_threads
 
     pilot = pilot or spec.pilot
     if is_inprocess(pilot):
         make_pilot(pilot)  # a pilot that cannot be made fails here with one line, not once per trial
+    default_cache_bytes()  # so does a bad $VIVA_SITL_TILE_CACHE_MB / _DECODE_THREADS, which every worker reads
+    default_decode_threads()
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     scenarios = draw_scenarios(spec, n, seed)
