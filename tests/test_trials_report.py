@@ -186,6 +186,14 @@ def test_report_and_compare_show_object_distances_as_in_results_json(
     ], r.stderr
     r = _cli("trials", "fly", str(SPEC), "--trial", "0", "-o", str(b_dir), timeout=120)
     assert r.returncode == 2 and "holds the results of pilot 'oracle'" in r.stderr and "ready" not in r.stdout
+    # the Python API refuses the same (the check lives in run_campaign, which the CLI calls)
+    from viva_sitl.evaluation.campaign import run_campaign
+    from viva_sitl.evaluation.spec import load_spec
+
+    with pytest.raises(
+        ValueError, match=r"holds the results of pilot 'oracle' on spec 'synthetic-emergency'"
+    ):
+        run_campaign(load_spec(SPEC), "descend", b_dir, n=2, progress=False)
     assert (b_dir / "results.json").read_text() == before
     # an output that cannot be written: one line, no traceback
     r = _cli(

@@ -310,6 +310,21 @@ def _preload_report_modules() -> None:
         import matplotlib.pyplot  # noqa: F401
 
 
+def refuse_other_run(out: Path, spec_name: str, pilot: str) -> None:
+    """OUT holding another pilot's or another spec's results is not overwritten (a copy-pasted -o would lose a
+    run); the same pilot and spec run again (or --resume) are fine: the trials are deterministic."""
+    try:
+        doc = json.loads((out / "results.json").read_text())
+        held = (str(doc["pilot"]), str(doc["spec"]["name"]))
+    except (OSError, ValueError, KeyError, TypeError):
+        return  # no run there (or no readable one): nothing to lose
+    if held != (pilot, spec_name):
+        raise ValueError(
+            f"{out} holds the results of pilot {held[0]!r} on spec {held[1]!r}: give this run (pilot {pilot!r}, "
+            f"spec {spec_name!r}) its own -o, or delete that directory"
+        )
+
+
 def run_campaign(
     spec: TrialSpec,
     pilot: str | None = None,
@@ -338,6 +353,7 @@ def run_campaign(
     default_cache_bytes()  # so does a bad $VIVA_SITL_TILE_CACHE_MB / _DECODE_THREADS, which every worker reads
     default_decode_threads()
     out = Path(out_dir)
+    refuse_other_run(out, spec.name, pilot)
     out.mkdir(parents=True, exist_ok=True)
     scenarios = draw_scenarios(spec, n, seed)
     if only is not None:
@@ -412,4 +428,13 @@ def rows_equal(a: list[Row], b: list[Row]) -> bool:
     return strip == strip_b
 
 
-__all__ = ["COLUMNS", "Campaign", "load_finished", "rows_equal", "run_campaign", "run_one", "trial_dir"]
+__all__ = [
+    "COLUMNS",
+    "Campaign",
+    "load_finished",
+    "refuse_other_run",
+    "rows_equal",
+    "run_campaign",
+    "run_one",
+    "trial_dir",
+]

@@ -202,21 +202,6 @@ def check_external_pilot(pilot: str) -> None:
         )
 
 
-def _refuse_other_run(out: Path, spec_name: str, pilot: str) -> None:
-    """OUT holding another pilot's or another spec's results is not overwritten (a copy-pasted -o would lose a
-    run); the same pilot and spec run again (or --resume) are fine: the trials are deterministic."""
-    try:
-        doc = json.loads((out / "results.json").read_text())
-        held = (str(doc["pilot"]), str(doc["spec"]["name"]))
-    except (OSError, ValueError, KeyError, TypeError):
-        return  # no run there (or no readable one): nothing to lose
-    if held != (pilot, spec_name):
-        raise ValueError(
-            f"{out} holds the results of pilot {held[0]!r} on spec {held[1]!r}: give this run (pilot {pilot!r}, "
-            f"spec {spec_name!r}) its own -o, or delete that directory"
-        )
-
-
 def _run(args: argparse.Namespace) -> int:
     from viva_sitl.evaluation.campaign import run_campaign
     from viva_sitl.evaluation.spec import load_spec
@@ -233,7 +218,6 @@ def _run(args: argparse.Namespace) -> int:
     safe = "".join(ch if ch.isalnum() or ch in "-_" else "_" for ch in pilot.split("/")[-1])[:40]
     name = f"{spec.name}-{safe}" + ("-trial-" + "-".join(map(str, args.trial)) if args.trial else "")
     out = Path(args.out) if args.out else Path("trials-out") / name
-    _refuse_other_run(out, spec.name, pilot)
     try:
         camp = run_campaign(
             spec, pilot, out, n=args.n, seed=args.seed, jobs=args.jobs, backend=args.backend,
@@ -255,13 +239,14 @@ def _run(args: argparse.Namespace) -> int:
 
 
 def _fly(args: argparse.Namespace) -> int:
+    from viva_sitl.evaluation.campaign import refuse_other_run
     from viva_sitl.evaluation.human import fly_trial
     from viva_sitl.evaluation.spec import load_spec
 
     spec = load_spec(args.spec)
     safe = "".join(ch if ch.isalnum() or ch in "-_" else "_" for ch in args.name)[:40]
     out = Path(args.out) if args.out else Path("trials-out") / f"{spec.name}-{safe}-trial-{args.trial}"
-    _refuse_other_run(out, spec.name, args.name)
+    refuse_other_run(out, spec.name, args.name)
     try:
         row = fly_trial(
             spec, args.trial, out, n=args.n, seed=args.seed, speed=args.speed, pilot=args.name,
