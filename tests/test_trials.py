@@ -422,6 +422,15 @@ def test_cli_interrupt_keeps_finished_trials_and_resume_completes(tmp_path: Path
     assert doc2["complete"] is True and [x["trial"] for x in doc2["rows"]] == [0, 1, 2, 3]
     for k, row in kept.items():  # finished trials were kept as they were, not run again
         assert doc2["rows"][k] == row
+    # resuming with a smaller --n reports the first 2, keeps the other 2 on disk and says so
+    r = subprocess.run([*cmd, "--resume", "--n", "2"], cwd=REPO, capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    assert [x["trial"] for x in json.loads((out / "results.json").read_text())["rows"]] == [0, 1]
+    assert (
+        f"note: 2 finished trial(s) not in this run's scenarios (trials 2-3) stay in {out / 'trials'}"
+        in r.stdout
+    )
+    assert json.loads((out / "trials" / "0003" / "result.json").read_text())["row"] == doc2["rows"][3]
     show = subprocess.run([sys.executable, "-m", "viva_sitl", "trials", "show", str(out), "--trial", "1"],
                           cwd=REPO, capture_output=True, text=True, timeout=60)  # fmt: skip
     assert show.returncode == 0 and "land_now" in show.stdout and "touchdown" in show.stdout
