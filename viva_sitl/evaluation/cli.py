@@ -252,7 +252,12 @@ def _finished_elsewhere(out: Path, indices: set[int]) -> list[int]:
 
 
 def _span(indices: list[int]) -> str:
-    return f"trial {indices[0]}" if len(indices) == 1 else f"trials {indices[0]}-{indices[-1]}"
+    """'trial 3', 'trials 2-3' (contiguous), 'trials 2, 5, 9' or 'trials 2, 5, 9, ...' (sorted indices)."""
+    if len(indices) == 1:
+        return f"trial {indices[0]}"
+    if indices[-1] - indices[0] == len(indices) - 1:
+        return f"trials {indices[0]}-{indices[-1]}"
+    return "trials " + ", ".join(map(str, indices[:3])) + (", ..." if len(indices) > 3 else "")
 
 
 def _fly(args: argparse.Namespace) -> int:
