@@ -239,7 +239,7 @@ def test_cli_builds_reports_size_and_refuses_beyond_the_bound(
 ) -> None:
     toml = str(clip.with_suffix(".toml"))
     out = tmp_path / "t"
-    rc = footage_main(["ingest", toml, "--tiles", "--out", str(out), "--max-frames", "2", "--no-progress"])
+    rc = footage_main(["ingest", toml, "--tiles", "-o", str(out), "--max-frames", "2", "--no-progress"])
     assert rc == 0 and "tiled 2 frames into" in capsys.readouterr().out
     with open_footage(str(out)) as src:
         assert isinstance(src, TileSource) and src.frame_count == 2

@@ -80,7 +80,7 @@ def build_parser() -> argparse.ArgumentParser:
         "ingest", parents=[common], help="transcode a heavy video into a fast-decoding cache"
     )
     ing.add_argument("footage", help="video path or catalog name")
-    ing.add_argument("--out", type=Path, help="output folder (default: <cache>/ingest/<name>-ingest)")
+    ing.add_argument("-o", "--out", type=Path, help="output folder (default: <cache>/ingest/<name>-ingest)")
     ing.add_argument("--name", help="cache entry name (default: <name>-ingest)")
     ing.add_argument("--levels", type=int, default=2, help="resolution levels: 1 full, 2 +half, 3 +quarter")
     ing.add_argument("--crf", type=int, default=18, help="x264 quality (lower = better, bigger)")
