@@ -38,28 +38,19 @@ sys.path.insert(0, str(REPO))
 sys.path.insert(0, str(REPO / "bench"))
 
 import bench_core as core  # noqa: E402
+from bench_tiles import make_tiles  # noqa: E402
 
 TILE_SIZES = (256, 192, 128)
-
-
-def _tiles(clip: Path, codec: str, tile_px: int) -> Path:
-    """`footage ingest --tiles` of the bench clip with this codec and tile size, once."""
-    from viva_sitl.footage.ingest import ingest_tiles
-
-    suffix = "" if tile_px == 256 else f"_{tile_px}"
-    dest = clip.with_name(f"{clip.stem}_tiles_{codec}{suffix}")
-    if not (dest / "footage.toml").exists():
-        ingest_tiles(
-            str(clip.with_suffix(".toml")), out_dir=dest, codec=codec, show_progress=False, tile_px=tile_px
-        )
-    return dest
 
 
 def part_sizes(args: argparse.Namespace, clip: Path) -> dict[str, Any]:
     out: dict[str, Any] = {}
     for z in args.z:
         a = argparse.Namespace(**{**vars(args), "z": z})
-        runners = {px: core.Ours(_tiles(clip, "jpeg", px), a, paper=False, render=True) for px in TILE_SIZES}
+        runners = {
+            px: core.Ours(make_tiles(clip, "jpeg", tile_px=px), a, paper=False, render=True)
+            for px in TILE_SIZES
+        }
         cpu: dict[int, list[float]] = {px: [] for px in TILE_SIZES}
         try:
             for _ in range(args.rounds):
@@ -79,7 +70,7 @@ def part_jpeg(clip: Path) -> dict[str, Any]:
 
     from viva_sitl.footage.tiles import TileCache
 
-    raw = TileCache(_tiles(clip, "raw", 256), cache_bytes=1 << 20, decode_threads=1)
+    raw = TileCache(make_tiles(clip, "raw"), cache_bytes=1 << 20, decode_threads=1)
     try:
         tiles = [np.ascontiguousarray(raw.region(f, 0, 1024, 512, 1280, 768)) for f in range(0, 60, 6)]
     finally:
@@ -185,7 +176,7 @@ def part_trial(clip: Path) -> dict[str, Any]:
     out: dict[str, Any] = {}
     try:
         for codec in ("raw", "jpeg"):
-            spec = bench_spec(str(_tiles(clip, codec, 256)), 4)
+            spec = bench_spec(str(make_tiles(clip, codec)), 4)
             sc = draw_scenarios(spec)
             with tempfile.TemporaryDirectory() as d:
                 run_inprocess_trial(spec, sc[0], "bench.bench_trials:VisionDescend", Path(d) / "warm")
@@ -231,8 +222,12 @@ def main() -> int:
         "warp": part_warp,
         "trial": lambda: part_trial(clip),
     }
-    for name in args.only:
-        res[name] = parts[name]()
+    try:
+        for name in args.only:
+            res[name] = parts[name]()
+    except KeyboardInterrupt:
+        print("interrupted: parts measured so far are printed above; no JSON written", file=sys.stderr)
+        return 130
     if args.json:
         args.json.write_text(json.dumps(res, indent=1))
     return 0

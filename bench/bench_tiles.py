@@ -37,16 +37,17 @@ sys.path.insert(0, str(REPO / "bench"))
 import bench_core as core  # noqa: E402
 
 
-def make_tiles(clip: Path, codec: str, frames: int | None = None) -> Path:
+def make_tiles(clip: Path, codec: str, frames: int | None = None, tile_px: int = 256) -> Path:
     """`viva-sitl footage ingest --tiles` of the bench clip, once (resumes if interrupted)."""
     from viva_sitl.footage.ingest import ingest_tiles
 
-    dest = clip.with_name(f"{clip.stem}_tiles_{codec}")
+    dest = clip.with_name(f"{clip.stem}_tiles_{codec}" + ("" if tile_px == 256 else f"_{tile_px}"))
     if not (dest / "footage.toml").exists():
         t0 = time.perf_counter()
         res = ingest_tiles(
-            str(clip.with_suffix(".toml")), out_dir=dest, codec=codec, show_progress=False, max_frames=frames
-        )
+            str(clip.with_suffix(".toml")), out_dir=dest, codec=codec, show_progress=False, max_frames=frames,
+            tile_px=tile_px,
+        )  # fmt: skip
         print(
             f"# tiled {clip.name} ({codec}): {res.disk_bytes / 2**20:.0f} MiB in {time.perf_counter() - t0:.0f} s "
             f"(video {clip.stat().st_size / 2**20:.0f} MiB)",

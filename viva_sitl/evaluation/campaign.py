@@ -59,6 +59,15 @@ def trial_dir(out_dir: Path, index: int) -> Path:
     return out_dir / "trials" / f"{index:04d}"
 
 
+def finished_trials(out_dir: Path) -> list[int]:
+    """Indices of the trials with a result.json under OUT/trials (the folders trial_dir names), sorted."""
+    try:
+        dirs = list((out_dir / "trials").iterdir())
+    except OSError:
+        return []
+    return sorted(int(d.name) for d in dirs if d.name.isdigit() and (d / "result.json").is_file())
+
+
 def default_wall_limit_s(spec: TrialSpec, pilot: str) -> float:
     """Wall seconds one trial may take before it is stopped: generous (loaded machines), finite (hung pilots)."""
     if is_inprocess(pilot):
@@ -345,13 +354,12 @@ def run_campaign(
     """Run (or resume) a campaign and write results.json / results.csv / report.html to out_dir. Ctrl-C keeps the
     finished trials (reports written for them) and re-raises KeyboardInterrupt after that."""
     from viva_sitl.evaluation.report import write_reports
-    from viva_sitl.footage.tiles import default_cache_bytes, default_decode_threads
+    from viva_sitl.footage.tiles import check_tile_environment
 
     pilot = pilot or spec.pilot
     if is_inprocess(pilot):
         make_pilot(pilot)  # a pilot that cannot be made fails here with one line, not once per trial
-    default_cache_bytes()  # so does a bad $VIVA_SITL_TILE_CACHE_MB / _DECODE_THREADS, which every worker reads
-    default_decode_threads()
+    check_tile_environment()  # so does a bad $VIVA_SITL_TILE_*, which every worker would read
     out = Path(out_dir)
     refuse_other_run(out, spec.name, pilot)
     out.mkdir(parents=True, exist_ok=True)
@@ -431,6 +439,7 @@ def rows_equal(a: list[Row], b: list[Row]) -> bool:
 __all__ = [
     "COLUMNS",
     "Campaign",
+    "finished_trials",
     "load_finished",
     "refuse_other_run",
     "rows_equal",

@@ -203,7 +203,7 @@ def check_external_pilot(pilot: str) -> None:
 
 
 def _run(args: argparse.Namespace) -> int:
-    from viva_sitl.evaluation.campaign import run_campaign
+    from viva_sitl.evaluation.campaign import finished_trials, run_campaign
     from viva_sitl.evaluation.spec import load_spec
 
     spec = load_spec(args.spec)
@@ -235,20 +235,12 @@ def _run(args: argparse.Namespace) -> int:
 
     _print_summary(read_results(out))
     print(f"  report: {out / 'report.html'}  results: {out / 'results.csv'}, {out / 'results.json'}")
-    beyond = _finished_elsewhere(out, {s.index for s in camp.scenarios})
+    ran = {s.index for s in camp.scenarios}
+    beyond = [k for k in finished_trials(out) if k not in ran]
     if beyond:  # e.g. --resume --n 2 after a run of 4: their results stay on disk, outside this report
         print(f"  note: {len(beyond)} finished trial(s) not in this run's scenarios ({_span(beyond)}) stay in "
               f"{out / 'trials'}; not in this report (rerun with their --n / --seed to include them)")  # fmt: skip
     return 0 if camp.complete else 1
-
-
-def _finished_elsewhere(out: Path, indices: set[int]) -> list[int]:
-    """Trial indices with a result.json under OUT/trials that are not among `indices`."""
-    found = []
-    for d in (out / "trials").glob("[0-9][0-9][0-9][0-9]"):
-        if d.name.isdigit() and int(d.name) not in indices and (d / "result.json").is_file():
-            found.append(int(d.name))
-    return sorted(found)
 
 
 def _span(indices: list[int]) -> str:

@@ -108,6 +108,13 @@ def default_decode_threads() -> int:
     return DEFAULT_DECODE_THREADS if n is None else int(n)
 
 
+def check_tile_environment() -> None:
+    """Raise the one-line FootageError of a bad $VIVA_SITL_TILE_CACHE_MB / $VIVA_SITL_TILE_DECODE_THREADS now (for a
+    parent whose children will open tile caches: it fails once, up front, rather than in every child)."""
+    default_cache_bytes()
+    default_decode_threads()
+
+
 @dataclass(frozen=True)
 class TileLayout:
     """Level sizes and tile grid of one footage size."""
