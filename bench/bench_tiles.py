@@ -40,9 +40,16 @@ import bench_core as core  # noqa: E402
 def make_tiles(clip: Path, codec: str, frames: int | None = None, tile_px: int = 256) -> Path:
     """`viva-sitl footage ingest --tiles` of the bench clip, once (resumes if interrupted)."""
     from viva_sitl.footage.ingest import ingest_tiles
+    from viva_sitl.footage.tiles import FORMAT_VERSION
 
     dest = clip.with_name(f"{clip.stem}_tiles_{codec}" + ("" if tile_px == 256 else f"_{tile_px}"))
-    if not (dest / "footage.toml").exists():
+    try:
+        current = json.loads((dest / "tiles" / "meta.json").read_text()).get("version") == FORMAT_VERSION
+    except (OSError, ValueError):
+        current = False
+    if (
+        not current or not (dest / "footage.toml").exists()
+    ):  # absent, unfinished or an older format: (re)build
         t0 = time.perf_counter()
         res = ingest_tiles(
             str(clip.with_suffix(".toml")), out_dir=dest, codec=codec, show_progress=False, max_frames=frames,

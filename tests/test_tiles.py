@@ -22,7 +22,14 @@ from viva_sitl.footage.cli import footage_main
 from viva_sitl.footage.geometry import FootageGeometry
 from viva_sitl.footage.ingest import ingest_tiles
 from viva_sitl.footage.testclip import write_coded_clip
-from viva_sitl.footage.tiles import COMMIT_FRAMES, TileSource, build_tiles
+from viva_sitl.footage.tiles import (
+    COMMIT_FRAMES,
+    INDEX_DTYPE,
+    INDEX_DTYPE_V1,
+    TileSource,
+    build_tiles,
+    tile_checksum,
+)
 from viva_sitl.sim import Simulator
 
 W, H = 1280, 720
@@ -136,6 +143,14 @@ def test_tile_source_frames_equal_the_video_and_the_lru_is_capped(
             lazy = LazyPyramid(np.ascontiguousarray(video.frame(i)))
             assert np.array_equal(src.frame(i, level=3), lazy.level(3))
             assert np.array_equal(src.region(i, 1, 100, 50, 333, 301), lazy.level(1)[50:301, 100:333])
+            # into a BGRA buffer (what the simulator's region render asks for): the same pixels, alpha 255
+            bgra = np.zeros((301 - 50, 333 - 100, 4), np.uint8)
+            assert src.region(i, 1, 100, 50, 333, 301, out=bgra) is bgra
+            assert np.array_equal(bgra[..., :3], lazy.level(1)[50:301, 100:333]) and np.all(
+                bgra[..., 3] == 255
+            )
+        with pytest.raises(ValueError, match="BGR or BGRA"):
+            src.region(0, 1, 100, 50, 333, 301, out=np.zeros((10, 10, 4), np.uint8))
         assert src.cache.lru_bytes <= src.cache.cache_bytes
     finally:
         src.close()
@@ -297,6 +312,18 @@ def test_corrupt_caches_give_one_clear_error_never_a_wrong_image(
         data[off] ^= 0x55
     (d / "tiles" / "pack-000.bin").write_bytes(bytes(data))
     fails(d, "checksum")
+    # the same in a raw cache (192 KiB tiles, no decoder to notice): one byte changed, or a 4 KiB page zeroed
+    for name, change in (("rawflip", "flip"), ("rawzero", "zero")):
+        d = _copy(caches["raw"], tmp_path / name)
+        data = bytearray((d / "tiles" / "pack-000.bin").read_bytes())
+        rec = np.fromfile(d / "tiles" / "index.bin", INDEX_DTYPE)[3]  # a level-0 tile of frame 0
+        start = int(rec["offset"]) + int(rec["length"]) // 3
+        if change == "flip":
+            data[start] ^= 0x01
+        else:
+            data[start : start + 4096] = bytes(4096)
+        (d / "tiles" / "pack-000.bin").write_bytes(bytes(data))
+        fails(d, "checksum")
     # a level missing: meta.json lists one level fewer
     d = _copy(base, tmp_path / "level")
     meta = json.loads((d / "tiles" / "meta.json").read_text())
@@ -470,3 +497,67 @@ def test_tiles_under_equals_the_vectorised_selection() -> None:
         dropped += len(got) < len(TileCache.tiles_under(cache, 0, x0, y0, x1, y1))  # type: ignore[arg-type]
     assert dropped > 100  # the footprint test did exclude tiles of the bounding box
     assert TileCache.tiles_under(cache, 0, 0, 0, 600, 300) == [(x, y) for y in (0, 1) for x in (0, 1, 2)]  # type: ignore[arg-type]
+
+
+def test_tile_checksum_sees_every_single_byte_change_and_truncation() -> None:
+    rng = np.random.default_rng(5)
+    for n in (0, 1, 7, 8, 9, 8 + 4 + 256 * 256 * 3, 1003):
+        data = bytearray(rng.integers(0, 256, n, dtype=np.uint8).tobytes())
+        base = tile_checksum(bytes(data))
+        assert base == tile_checksum(memoryview(bytes(data)))
+        if n:
+            assert tile_checksum(bytes(data[:-1])) != base
+        for pos in rng.integers(0, max(n, 1), min(n, 40)):
+            for flip in (0x01, 0x80, 0xFF):
+                data[pos] ^= flip
+                assert tile_checksum(bytes(data)) != base, (n, pos, flip)
+                data[pos] ^= flip
+
+
+def test_format_1_caches_with_crc32_stay_readable_and_checked(
+    caches: dict[str, Path], tmp_path: Path
+) -> None:
+    """A cache written before the 64-bit sum (format 1: CRC-32 in a 4-byte field) renders the same pixels, and a
+    changed byte in it is still a checksum error."""
+    import zlib
+
+    def to_v1(folder: Path) -> None:
+        tdir = folder / "tiles"
+        idx = np.fromfile(tdir / "index.bin", INDEX_DTYPE)
+        packs = {int(k): (tdir / f"pack-{int(k):03d}.bin").read_bytes() for k in np.unique(idx["pack"])}
+        v1 = np.zeros(len(idx), INDEX_DTYPE_V1)
+        for name in ("pack", "length", "offset"):
+            v1[name] = idx[name]
+        for i, r in enumerate(idx):
+            blob = packs[int(r["pack"])][int(r["offset"]) : int(r["offset"]) + int(r["length"])]
+            v1["check"][i] = zlib.crc32(blob)
+        v1.tofile(tdir / "index.bin")
+        meta = json.loads((tdir / "meta.json").read_text())
+        meta["version"] = 1
+        (tdir / "meta.json").write_text(json.dumps(meta))
+
+    old = _copy(caches["raw"], tmp_path / "v1")
+    to_v1(old)
+    cam = CameraParams(width_px=160, height_px=120)
+    sims = [Simulator(SimConfig(camera=cam), footage=str(f)) for f in (caches["raw"], old)]
+    try:
+        for sim in sims:
+            sim.reset(seed=0, pos_ned_m=(3.0, -2.0, -40.0))
+        for t in range(FRAMES):
+            a, b = (sim.render(replace(sim.state, time_s=0.04 * t)).image_bgr for sim in sims)
+            assert np.array_equal(a, b)
+    finally:
+        for sim in sims:
+            sim.close()
+    pack = old / "tiles" / "pack-000.bin"
+    data = bytearray(pack.read_bytes())
+    rec = np.fromfile(old / "tiles" / "index.bin", INDEX_DTYPE_V1)[3]  # a level-0 tile of frame 0
+    data[int(rec["offset"]) + int(rec["length"]) // 3] ^= 0x10
+    pack.write_bytes(bytes(data))
+    src = open_footage(str(old))
+    try:
+        with pytest.raises(FootageError, match="checksum"):
+            for k in range(FRAMES):
+                src.frame(k)
+    finally:
+        src.close()

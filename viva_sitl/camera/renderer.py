@@ -273,7 +273,8 @@ class Renderer:
         h_f2i, vac_to_src = self.view_maps(pos, att, src_w, src_h)
         h_f2i = h_f2i.copy()  # the result's own (the cached one stays read-only)
         cam_rot_body, _ = camera_extrinsics(p, att)
-        shape = (p.height_px, p.width_px) + src0.shape[2:]
+        # a BGRA source (tile regions) renders BGR like a BGR one
+        shape = (p.height_px, p.width_px) + (src0.shape[2:] if src0.shape[2:] != (4,) else (3,))
 
         # exact polygon coverage for the pinhole; with lens distortion it is counted per pixel below
         # (the common case, the view inside the frame, is one product: no clipping, nothing behind to paint)
