@@ -589,3 +589,31 @@ def test_existing_mot_annotations_become_interpolated_tracks(tmp_path: Path) -> 
     at2 = world.tracks.objects_at(2 / 30.0)
     assert sorted(ObjectClass(int(c)).label for c in at2.object_class) == ["car", "person"]
     assert len(world.tracks.objects_at(12 / 30.0)) == 0 and len(world.tracks.objects_at((40 + 2) / 30.0)) == 2
+
+
+@pytest.mark.parametrize("name", ["interchange", "sdd-nexus-5"])
+def test_a_tile_cache_keeps_the_footage_ground_truth(name: str, tmp_path: Path) -> None:
+    """`footage ingest --tiles` carries [tracks], [risk] and the derived tracks into the cache's footage.toml, so
+    trials flown over the cache are scored against the same objects and risk as over the footage itself."""
+    from viva_sitl.footage.ingest import ingest_tiles
+
+    if not (SHARED / "footage").is_dir():
+        pytest.skip(f"{SHARED / 'footage'} is absent")
+    src = load_world(name, shared_dir=SHARED, config_dir=CONFIGS)
+    res = ingest_tiles(name, out_dir=tmp_path / "t", shared_dir=SHARED, config_dir=CONFIGS, max_frames=8,
+                       show_progress=False)  # fmt: skip
+    cache = load_world(str(res.folder), shared_dir=SHARED, config_dir=CONFIGS)
+    assert cache.has_risk_map and src.has_risk_map and cache.has_objects == src.has_objects
+    assert cache.has_objects, "the shipped footage has objects: the comparison below must compare some"
+    # the video's first 8 frames (the cache holds those); the still's tracks over two minutes
+    times = np.arange(0.0, 8 / 25.0, 0.02) if name == "interchange" else np.arange(0.0, 120.0, 2.1)
+    seen = 0
+    for t in times:
+        a, b = src.tracks.objects_at(float(t)), cache.tracks.objects_at(float(t))
+        assert np.array_equal(a.ne_m, b.ne_m) and np.array_equal(a.object_class, b.object_class)
+        seen += len(a)
+    assert seen > 0
+    rng = np.random.default_rng(1)
+    half_n, half_e = src.geometry.ground_height_m / 2, src.geometry.ground_width_m / 2
+    for n, e in rng.uniform(-1.0, 1.0, (300, 2)) * (half_n, half_e):
+        assert src.risk_at(float(n), float(e), 0.1) == cache.risk_at(float(n), float(e), 0.1)

@@ -91,7 +91,12 @@ def build_parser() -> argparse.ArgumentParser:
         help="build a tiled multi-resolution cache instead (render cost follows the view, not the footage size; "
         "resumable: rerun after an interruption)",
     )  # fmt: skip
-    ing.add_argument("--tile-codec", choices=tiles.CODECS, default=tiles.DEFAULT_CODEC, help="with --tiles")
+    ing.add_argument(
+        "--tile-codec", choices=tiles.CODECS, default=tiles.DEFAULT_CODEC,
+        help="with --tiles: jpeg (default, q95, ~46 dB, the smallest), png (lossless, slowest to read) or raw "
+        "(lossless and the fastest: ~2x jpeg's full steps/s at 50 m over 4K, for ~7x its size on disk: ~32 MiB "
+        "per 4K frame)",
+    )  # fmt: skip
     ing.add_argument(
         "--tile-quality", type=int, default=tiles.DEFAULT_JPEG_QUALITY, help="jpeg quality 1-100"
     )

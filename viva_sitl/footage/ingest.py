@@ -199,9 +199,55 @@ def _write_metadata(
             f"format = {_toml_value(meta.annotations_format.value)}",
             f"class_names = {_toml_value(list(meta.class_names))}",
         ]
+    lines += _ground_truth_lines(meta)
     if not all(math.isfinite(v) for v in (geometry.gsd_m_per_px, geometry.recording_altitude_m)):
         raise FootageError("ingest: non-finite geometry")
     path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    # the source's derived tracks (`footage annotate`, `<metadata stem>.tracks.csv`) as of now, beside the copy's
+    # metadata where the world model looks for them
+    derived = _derived_tracks(meta)
+    if derived is not None:
+        shutil.copyfile(derived, path.with_name(path.stem + ".tracks.csv"))
+
+
+def _derived_tracks(meta: FootageMetadata) -> Path | None:
+    if not meta.config_file.endswith(".toml"):
+        return None
+    cfg = Path(meta.config_file)
+    p = cfg.with_name(cfg.stem + ".tracks.csv")
+    return p if p.is_file() else None
+
+
+def _ground_truth_lines(meta: FootageMetadata) -> list[str]:
+    """The source's [tracks] and [risk] tables (paths made absolute): a cache of the footage keeps its ground
+    truth, so trials over it are scored as over the footage itself."""
+    out: list[str] = []
+    t = meta.tracks
+    if t is not None:
+        out += ["", "[tracks]", f"path = {_toml_value(t.path)}", f"format = {_toml_value(t.format.value)}",
+                f"max_gap_frames = {_toml_value(t.max_gap_frames)}"]  # fmt: skip
+        if t.fps is not None:
+            out.append(f"fps = {_toml_value(t.fps)}")
+        if t.class_map:
+            out.append("class_map = { " + ", ".join(f"{json.dumps(k)} = {_toml_value(v)}" for k, v in t.class_map)
+                       + " }")  # fmt: skip
+    r = meta.risk
+    if r is not None:
+        out += ["", "[risk]", f"default_level = {_toml_value(r.default_level)}"]
+        if r.polygons:
+            out.append(f"polygons = {_toml_value(r.polygons)}")
+        if r.raster:
+            out.append(f"raster = {_toml_value(r.raster)}")
+        if r.notes:
+            out.append(f"notes = {_toml_value(r.notes)}")
+        if r.levels:
+            out.append("levels = { " + ", ".join(f"{json.dumps(k)} = {v}" for k, v in r.levels) + " }")
+        if r.objects:
+            out += ["", "[risk.objects]"]
+            out += [
+                f"{json.dumps(c)} = {{ level = {lv}, buffer_m = {_toml_value(b)} }}" for c, lv, b in r.objects
+            ]
+    return out
 
 
 def ingest_tiles(
