@@ -141,13 +141,15 @@ def bench_scale(args: argparse.Namespace) -> dict[str, Any]:
     for z in args.z:
         a = replace_ns(args, z=z)
         row: dict[str, Any] = {}
+        kinds = [f"tiles_{c}" for c in args.scale_codecs] + ["video"]
         for name, (w, h) in sizes.items():
             clip = core.make_clip(args.cache_dir, args.scale_frames, w, h, args.rel_alt)
-            tiles = make_tiles(clip, "jpeg")
-            row[f"tiles_jpeg_{name}_ms"] = _time_steps(tiles, a, args.rounds)
+            for codec in args.scale_codecs:
+                tiles = make_tiles(clip, codec)
+                row[f"tiles_{codec}_{name}_ms"] = _time_steps(tiles, a, args.rounds)
+                row[f"tiles_{codec}_{name}_disk_mib"] = disk_mib(tiles)
             row[f"video_{name}_ms"] = _time_steps(clip, a, args.rounds)
-            row[f"tiles_jpeg_{name}_disk_mib"] = disk_mib(tiles)
-        for kind in ("tiles_jpeg", "video"):
+        for kind in kinds:
             row[f"{kind}_8K_over_1080p"] = row[f"{kind}_8K_ms"] / row[f"{kind}_1080p_ms"]
         row["loadavg"] = loadavg()
         out[f"z{z:g}"] = row
@@ -270,16 +272,26 @@ def to_markdown(res: dict[str, Any]) -> str:
         lines.append("")
     sc = res.get("scale")
     if sc:
+        codecs = [k[len("tiles_") : -len("_1080p_ms")] for k in next(iter(sc.values())) if k.endswith("_1080p_ms")
+                  and k.startswith("tiles_")]  # fmt: skip
         lines += [
-            "| z | footage | tiles jpeg ms/step | video ms/step | tile cache MiB |",
-            "|---|---|---:|---:|---:|",
+            "| z | footage | "
+            + " | ".join(f"tiles {c} ms/step" for c in codecs)
+            + " | video ms/step | "
+            + " | ".join(f"{c} cache MiB" for c in codecs)
+            + " |",
+            "|---|---|" + "---:|" * (2 * len(codecs) + 1),
         ]
         for key, row in sc.items():
             for name in ("1080p", "4K", "8K"):
-                lines.append(f"| {key[1:]} m | {name} | {row[f'tiles_jpeg_{name}_ms']:.2f} | {row[f'video_{name}_ms']:.2f} | "
-                             f"{row[f'tiles_jpeg_{name}_disk_mib']:.0f} |")  # fmt: skip
-            lines.append(f"| {key[1:]} m | **8K / 1080p** | **{row['tiles_jpeg_8K_over_1080p']:.2f}x** | "
-                         f"{row['video_8K_over_1080p']:.2f}x | load {row['loadavg']} |")  # fmt: skip
+                cells = [f"{row[f'tiles_{c}_{name}_ms']:.2f}" for c in codecs] + [
+                    f"{row[f'video_{name}_ms']:.2f}"
+                ]
+                cells += [f"{row[f'tiles_{c}_{name}_disk_mib']:.0f}" for c in codecs]
+                lines.append(f"| {key[1:]} m | {name} | " + " | ".join(cells) + " |")
+            ratios = [f"**{row[f'tiles_{c}_8K_over_1080p']:.2f}x**" for c in codecs]
+            lines.append(f"| {key[1:]} m | **8K / 1080p** | " + " | ".join(ratios)
+                         + f" | {row['video_8K_over_1080p']:.2f}x | load {row['loadavg']} |" + " |" * (len(codecs) - 1))  # fmt: skip
         lines.append("")
     mem = res.get("mem")
     if mem:
@@ -310,6 +322,8 @@ def main() -> int:
     ap.add_argument("--frames", type=int, default=60, help="frames of the 4K clip")
     ap.add_argument("--scale-frames", type=int, default=30, help="frames of the 1080p/4K/8K scale clips")
     ap.add_argument("--scale-steps", type=int, default=60, help="steps per timed run in the scale part")
+    ap.add_argument("--scale-codecs", nargs="+", default=["jpeg", "raw"], choices=["jpeg", "png", "raw"],
+                    help="tile codecs of the scale part (raw at 8K: ~4 GiB for 30 frames)")  # fmt: skip
     ap.add_argument("--rel-alt", type=float, default=core.DEFAULT_REL_ALT_M)
     ap.add_argument("--z", type=float, nargs="*", default=[50.0, 300.0])
     ap.add_argument("--yaw-deg", type=float, default=30.0)
