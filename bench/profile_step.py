@@ -10,6 +10,9 @@ view, hover, yaw rate 30 deg/s), as bench_tiles.py times it, with the decoded-ti
 steps/s (--runs, after one warm-up run), the tiles decoded per frame and the level / footage px per VAC px the view
 reads, then the top --top functions by own time of one run under cProfile (0: none; profiling inflates Python).
 --read-check: reading and checking 3000 raw tiles with `read` vs through `mmap` (first and second touch), us/tile.
+--sweep-mem: peak RSS (VmHWM) of a child process flying 1280x720 views east across the whole footage at 30 m and
+back 300 m north (600 renders, 64 MiB tile LRU), with the region buffers' bound (RegionPyramid._buffer) and with
+it disabled: what the bound saves on a long flight.
 """
 
 from __future__ import annotations
@@ -75,6 +78,31 @@ def read_check(folder: Path, n: int = 3000) -> None:
         print(f"pass {k + 1}: read {rd:.1f} us/tile; mmap first touch {first:.1f}, second {second:.1f}")
 
 
+def sweep_child(footage: Path, bound: bool) -> None:
+    from dataclasses import replace
+
+    import viva_sitl.camera.pyramid as pyramid
+    from viva_sitl.camera import CameraParams
+    from viva_sitl.config import SimConfig
+    from viva_sitl.sim import Simulator
+
+    if not bound:
+        pyramid.RESET_REGIONS = 10**9
+    sim = Simulator(SimConfig(camera=CameraParams(width_px=1280, height_px=720)), footage=str(footage))
+    cache = getattr(sim.footage, "cache", None)
+    if cache is not None:
+        cache.cache_bytes = 64 << 20
+    half_w = sim.footage.geometry.ground_width_m / 2 - 30.0
+    sim.reset(seed=0, pos_ned_m=(0.0, 0.0, -30.0))
+    for k in range(600):
+        east = -half_w + 2 * half_w * (k % 300) / 300
+        pos = sim.state.pos_ned_m * 0 + [-150.0 + 300.0 * (k // 300), east, -30.0]
+        sim.render(replace(sim.state, time_s=k / 30.0, pos_ned_m=pos), wall_time_s=0.0)
+    sim.close()
+    hwm = [ln for ln in Path("/proc/self/status").read_text().splitlines() if ln.startswith("VmHWM")][0]
+    print(f"{'with' if bound else 'without'} the bound: {hwm.split(':')[1].strip()} peak RSS")
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("footage", type=Path)
@@ -85,9 +113,20 @@ def main() -> int:
     ap.add_argument("--out-size", default="640x480")
     ap.add_argument("--rel-alt", type=float, default=core.DEFAULT_REL_ALT_M)
     ap.add_argument("--read-check", action="store_true")
+    ap.add_argument("--sweep-mem", action="store_true")
+    ap.add_argument("--sweep-child", choices=["bound", "unbound"], help=argparse.SUPPRESS)
     core.add_tile_cache_arg(ap)
     args = ap.parse_args()
     core.apply_tile_cache(ap, args)
+    if args.sweep_child:
+        sweep_child(args.footage, args.sweep_child == "bound")
+        return 0
+    if args.sweep_mem:
+        import subprocess
+
+        for mode in ("bound", "unbound"):
+            subprocess.run([sys.executable, __file__, str(args.footage), "--sweep-child", mode], check=True)
+        return 0
     if args.read_check:
         read_check(args.footage)
         return 0

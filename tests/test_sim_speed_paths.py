@@ -139,6 +139,29 @@ def test_region_pyramid_level_equals_lazy_pyramid_in_its_region() -> None:
         RegionPyramid(90, 72).fill(2, 0, 0, img[:8, :8])  # 90 is not a multiple of 4
 
 
+def test_region_pyramid_gives_pages_back_on_a_long_flight(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Regions written far apart (a flight across a large frame) do not accumulate resident pages: once what was
+    written spans RESET_REGIONS times the region, the level buffer is replaced; the region just written is right."""
+    import viva_sitl.camera.pyramid as pyramid
+
+    monkeypatch.setattr(pyramid, "RESET_MIN_PX", 0)  # the rule alone, at a test-sized frame
+    rng = np.random.default_rng(2)
+    img = rng.integers(0, 256, (512, 1024, 4), dtype=np.uint8)
+    rp = RegionPyramid(1024, 512, channels=4)
+    buffers: list[np.ndarray] = []  # kept alive, so distinct buffers have distinct ids
+    spans = []
+    for x0 in range(0, 1024 - 64, 32):  # a 64 x 64 region sliding right, 32 px per frame
+        out = rp.level_buffer(0, x0, 200, x0 + 64, 264)
+        out[...] = img[200:264, x0 : x0 + 64]
+        rp.mark_filled(0)
+        assert np.array_equal(rp[0][200:264, x0 : x0 + 64], img[200:264, x0 : x0 + 64])
+        buffers.append(rp[0])
+        x_lo, _, x_hi, _ = rp._written[0]
+        spans.append(x_hi - x_lo)
+    assert max(spans) * 64 <= pyramid.RESET_REGIONS * 64 * 64  # never more than the rule allows written
+    assert len({id(b) for b in buffers}) > 1  # replaced along the way (30 frames over 16 region widths)
+
+
 def _poses(
     rng: np.random.Generator, n: int
 ) -> list[tuple[tuple[float, float, float], tuple[float, float, float]]]:

@@ -108,6 +108,12 @@ class LazyPyramid:
         return self.max_level + 1
 
 
+# a level buffer is replaced (its pages given back) once what was written into it spans more than this many times
+# the region being written, and more than RESET_MIN_PX pixels (see RegionPyramid._buffer)
+RESET_REGIONS = 6
+RESET_MIN_PX = 1 << 22
+
+
 class RegionPyramid(Sequence[U8]):
     """Full-size pyramid levels of one footage frame of which only one region of one level is filled in.
 
@@ -139,6 +145,7 @@ class RegionPyramid(Sequence[U8]):
         # shape even when it warps from another level)
         self._stubs: list[U8] = [np.broadcast_to(zero, (h, w, channels)) for w, h in self.sizes_px]
         self._buffers: dict[int, U8] = {}
+        self._written: dict[int, tuple[int, int, int, int]] = {}  # level -> box written since allocated
         self.filled_level = -1
         self.filled_levels: set[int] = set()
         # level-0 x0, y0, x1, y1 of the filled region
@@ -163,11 +170,23 @@ class RegionPyramid(Sequence[U8]):
         self.filled_level, self.region_px, self.key = -1, (0, 0, 0, 0), None
         self.filled_levels = set()
 
-    def _buffer(self, level: int) -> U8:
+    def _buffer(self, level: int, box: tuple[int, int, int, int]) -> U8:
+        """Level `level`'s full-size buffer, about to be written over `box` (x0, y0, x1, y1 in level pixels).
+
+        Allocated lazily (np.zeros: only the pages written become resident), and replaced by a fresh one once the
+        bounding box of everything written into it since it was allocated would exceed RESET_REGIONS times this
+        region (and RESET_MIN_PX): a long flight over a large frame would otherwise make all of it resident
+        (133 MB for a BGRA 8K level 0). What lies outside the filled region is unspecified anyway."""
+        x0, y0, x1, y1 = box
         buf = self._buffers.get(level)
-        if buf is None:
+        wx0, wy0, wx1, wy1 = self._written.get(level, box)
+        ux0, uy0, ux1, uy1 = min(wx0, x0), min(wy0, y0), max(wx1, x1), max(wy1, y1)
+        union = max(0, ux1 - ux0) * max(0, uy1 - uy0)
+        if buf is None or union > max(RESET_REGIONS * max(0, x1 - x0) * max(0, y1 - y0), RESET_MIN_PX):
             lw, lh = self.sizes_px[level]
             buf = self._buffers[level] = np.zeros((lh, lw, self.channels), np.uint8)
+            ux0, uy0, ux1, uy1 = box
+        self._written[level] = (ux0, uy0, ux1, uy1)
         return buf
 
     def level_buffer(self, level: int, lx0: int, ly0: int, lx1: int, ly1: int) -> U8:
@@ -175,7 +194,7 @@ class RegionPyramid(Sequence[U8]):
         lw, lh = self.sizes_px[level]
         if not (0 <= lx0 < lx1 <= lw and 0 <= ly0 < ly1 <= lh):
             raise ValueError(f"({lx0}, {ly0})-({lx1}, {ly1}) is outside level {level} ({lw}x{lh})")
-        return self._buffer(level)[ly0:ly1, lx0:lx1]
+        return self._buffer(level, (lx0, ly0, lx1, ly1))[ly0:ly1, lx0:lx1]
 
     def mark_filled(self, level: int) -> None:
         """Level `level` now holds data (filled through `level_buffer`)."""
@@ -192,7 +211,7 @@ class RegionPyramid(Sequence[U8]):
         h, w = pixels_bgr.shape[:2]
         if lx0 < 0 or ly0 < 0 or lx0 + w > lw or ly0 + h > lh or pixels_bgr.shape[2:] != (self.channels,):
             raise ValueError(f"{w}x{h} pixels at ({lx0}, {ly0}) do not fit level {level} ({lw}x{lh})")
-        self._buffer(level)[ly0 : ly0 + h, lx0 : lx0 + w] = pixels_bgr
+        self._buffer(level, (lx0, ly0, lx0 + w, ly0 + h))[ly0 : ly0 + h, lx0 : lx0 + w] = pixels_bgr
         if self.filled_level < 0 or level < self.filled_level:
             self.filled_level = level
         self.filled_levels.add(level)
@@ -245,14 +264,15 @@ class RegionPyramid(Sequence[U8]):
         for _ in range(level - source_level):
             img = half_size(img)
         lx, ly = x0 >> level, y0 >> level
-        self._buffer(level)[ly : ly + img.shape[0], lx : lx + img.shape[1]] = img
+        self._buffer(level, (lx, ly, lx + img.shape[1], ly + img.shape[0]))[
+            ly : ly + img.shape[0], lx : lx + img.shape[1]
+        ] = img
         self.filled_level = level
         self.filled_levels = {level}
         if next_level:
             img = half_size(img)
-            self._buffer(level + 1)[
-                ly >> 1 : (ly >> 1) + img.shape[0], lx >> 1 : (lx >> 1) + img.shape[1]
-            ] = img
+            box = (lx >> 1, ly >> 1, (lx >> 1) + img.shape[1], (ly >> 1) + img.shape[0])
+            self._buffer(level + 1, box)[box[1] : box[3], box[0] : box[2]] = img
             self.filled_levels.add(level + 1)
         self.region_px = (x0, y0, x1, y1)
 
