@@ -2,12 +2,20 @@
 
 from __future__ import annotations
 
+import signal
 from collections.abc import Callable, Generator, Iterator
 from pathlib import Path
 from typing import Any
 
 import pytest
 from sitl_process import MavlinkPeer, SitlProcess, e2e_speed, free_udp_ports
+
+# The Ctrl-C tests send SIGINT to the processes they start. A shell that starts a job in the background without job
+# control (`cmd &` in a script, as a CI harness may) starts it with SIGINT ignored, and exec keeps an ignored signal
+# ignored in every child: the Python processes under test would then never see a KeyboardInterrupt. The default
+# handler here makes their own default (exec resets a handled signal to SIG_DFL, which Python then handles).
+if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+    signal.signal(signal.SIGINT, signal.default_int_handler)
 
 SHARED_DIR = Path(__file__).resolve().parents[2] / "shared"
 
