@@ -115,6 +115,40 @@ def test_frame_region_equals_the_frame_and_keeps_decoding_sequential(clip: Path)
         ref.close()
 
 
+def test_a_late_read_ahead_is_skipped_not_seeked(clip: Path) -> None:
+    """The simulator's read-ahead (prefetch with only_next) decodes only the frame after the decoder's position or
+    the loop's wrap to frame 0: a job that ran late, after the loop moved on, neither seeks back nor decodes past
+    the frames the loop reads next. A plain prefetch(index) still decodes any frame."""
+    src = open_footage(str(clip), altitude_m=ALT_M, hfov_deg=HFOV)
+    assert isinstance(src, VideoSource)
+    try:
+        for i in range(5):
+            src.frame(i)
+        stats = dict(src.decoder_stats)
+        src.prefetch(0, only_next=True)  # behind: a late job from the previous loop
+        src.prefetch(7, only_next=True)  # ahead of the next frame: a late job as well
+        assert src.decoder_stats == stats
+        src.prefetch(5, only_next=True)  # the next frame: decoded ahead, no seek
+        assert (
+            src.decoder_stats["decoded"] == stats["decoded"] + 1
+            and src.decoder_stats["seeks"] == stats["seeks"]
+        )
+        src.frame(5)
+        src.frame(6)
+        src.frame(7)
+        seeks = src.decoder_stats["seeks"]
+        src.prefetch(0, only_next=True)  # the wrap from the clip's last frame: seeks to the start
+        assert src.decoder_stats["seeks"] == seeks + 1
+        src.frame(7)  # still kept: no seek back
+        src.frame(0)
+        assert src.decoder_stats["seeks"] == seeks + 1
+        decoded = src.decoder_stats["decoded"]
+        src.prefetch(4)  # an explicit prefetch of any frame decodes it (here forward, 1..4)
+        assert src.decoder_stats["decoded"] == decoded + 4
+    finally:
+        src.close()
+
+
 def test_region_pyramid_level_equals_lazy_pyramid_in_its_region() -> None:
     rng = np.random.default_rng(5)
     img = rng.integers(0, 256, (72, 96, 3), dtype=np.uint8)

@@ -352,8 +352,10 @@ class Simulator:
             return
         if self._prefetch_job is not None and not self._prefetch_job.done():
             return
+        # only_next: a job that runs late (a starved thread), after this loop has moved on, is skipped rather
+        # than seeking the shared decoder away from the frames this loop reads next
         self._prefetch_job = self._prefetcher.submit(
-            self.footage.prefetch, index + 1, self._source_level_used
+            self.footage.prefetch, index + 1, self._source_level_used, True
         )
 
     def _render_ground_view(

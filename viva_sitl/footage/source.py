@@ -266,6 +266,15 @@ class _Decoder:
     def _key_of(self, raw: av.VideoFrame) -> int:
         return next((i for i, f in self._recent.items() if f is raw), -1)
 
+    def is_next(self, index: int, frame_count: int) -> bool:
+        """True when `index` is the frame right after the decoder's position (or the loop's wrap to frame 0 from
+        the clip's last two frames), is kept already, or nothing was decoded yet: what a prefetch is for. Any other
+        index is a prefetch that ran late, after its caller moved on: decoding it would seek back, or decode ahead
+        past the caller's next frames, and the caller's next read would seek again."""
+        if self._iter is None or index in self._recent or index == self._last_index + 1:
+            return True
+        return index == 0 and self._last_index >= frame_count - 2
+
     def get_raw(self, index: int) -> av.VideoFrame:
         """The decoded frame `index` (YUV, as the codec outputs it; the last one at the end of the stream)."""
         cached = self._recent.get(index)
@@ -481,12 +490,18 @@ class VideoSource(FootageSource):
             dec = self._levels[level] = _Decoder(Path(self.metadata.levels[level - 1]))
         return dec
 
-    def prefetch(self, index: int, level: int = 0) -> None:
-        """Decode frame `index` (no conversion) so that a later `frame`/`frame_region` of it returns at once."""
+    def prefetch(self, index: int, level: int = 0, only_next: bool = False) -> None:
+        """Decode frame `index` (no conversion) so that a later `frame`/`frame_region` of it returns at once.
+
+        `only_next` (a read-ahead thread's call): decode only when `index` is the frame after the decoder's
+        position (or the wrap to frame 0 at the clip's end); a job that ran late, after its caller moved on, is
+        skipped instead of seeking (see `_Decoder.is_next`). The check and the decode hold the source's lock."""
         index = int(index) % self.frame_count
         with self._lock:
             if not self._closed:
-                self._level_decoder(level).get_raw(index)
+                dec = self._level_decoder(level)
+                if not only_next or dec.is_next(index, self.frame_count):
+                    dec.get_raw(index)
 
     def annotations(self, index: int) -> list[Annotation]:
         return self._annotations.get(int(index) % self.frame_count)

@@ -537,7 +537,7 @@ class TileSource(FootageSource):
         self._check_open()
         return self.cache.region(int(index) % self.frame_count, level, x0, y0, x1, y1, out, quad, margin_px)
 
-    def prefetch(self, index: int, level: int = 0) -> None:
+    def prefetch(self, index: int, level: int = 0, only_next: bool = False) -> None:
         """Nothing to do ahead: tiles are decoded on demand (kept for the VideoSource interface)."""
 
     def describe(self) -> dict[str, Any]:
