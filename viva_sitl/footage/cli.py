@@ -261,11 +261,11 @@ def _cmd_show(args: argparse.Namespace, config_dir: Path, shared_dir: Path, cach
 
 def default_tracks_path(meta: FootageMetadata) -> Path:
     """Where derived tracks go: beside the metadata file (<stem>.tracks.csv), else beside the media file."""
-    from viva_sitl.world.model import DERIVED_SUFFIX
+    from viva_sitl.footage.worldmeta import DERIVED_SUFFIX, derived_tracks_path
 
-    if meta.config_file.endswith(".toml"):
-        cfg = Path(meta.config_file)
-        return cfg.with_name(cfg.stem + DERIVED_SUFFIX)
+    beside_metadata = derived_tracks_path(meta.config_file)
+    if beside_metadata is not None:
+        return beside_metadata
     if meta.path:
         media = Path(meta.path)
         return media.with_name(media.stem + DERIVED_SUFFIX)

@@ -43,6 +43,7 @@ from viva_sitl.footage.loader import (
 from viva_sitl.footage.metadata import FootageKind, FootageMetadata
 from viva_sitl.footage.paths import default_cache_dir
 from viva_sitl.footage.srt import find_srt_sidecar
+from viva_sitl.footage.worldmeta import derived_tracks_path
 
 LEVEL_FILES = ("full.mp4", "half.mp4", "quarter.mp4")
 
@@ -205,17 +206,10 @@ def _write_metadata(
     path.write_text("\n".join(lines) + "\n", encoding="utf-8")
     # the source's derived tracks (`footage annotate`, `<metadata stem>.tracks.csv`) as of now, beside the copy's
     # metadata where the world model looks for them
-    derived = _derived_tracks(meta)
-    if derived is not None:
-        shutil.copyfile(derived, path.with_name(path.stem + ".tracks.csv"))
-
-
-def _derived_tracks(meta: FootageMetadata) -> Path | None:
-    if not meta.config_file.endswith(".toml"):
-        return None
-    cfg = Path(meta.config_file)
-    p = cfg.with_name(cfg.stem + ".tracks.csv")
-    return p if p.is_file() else None
+    derived = derived_tracks_path(meta.config_file)
+    copy = derived_tracks_path(path)
+    if derived is not None and copy is not None and derived.is_file():
+        shutil.copyfile(derived, copy)
 
 
 def _ground_truth_lines(meta: FootageMetadata) -> list[str]:

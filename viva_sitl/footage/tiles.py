@@ -60,8 +60,6 @@ U8 = NDArray[np.uint8]
 
 TILES_SUBDIR = "tiles"
 FORMAT_VERSION = 2
-# format -> the checksum its index records (format 1: CRC-32; caches written by earlier versions stay readable)
-CHECKSUMS = {1: "crc32", 2: "sum64"}
 DEFAULT_TILE_PX = 256
 DEFAULT_CODEC = "jpeg"
 CODECS = ("jpeg", "png", "raw")
@@ -169,6 +167,14 @@ def tile_checksum(data: bytes | memoryview) -> int:
     return (total + int.from_bytes(bytes(data[whole:]), "little") + n) & _MASK64
 
 
+# format -> its index record and the checksum the record holds (format 1: CRC-32 in 4 bytes; caches written by
+# earlier versions stay readable)
+FORMATS: dict[int, tuple[np.dtype[Any], Callable[[bytes], int]]] = {
+    1: (INDEX_DTYPE_V1, zlib.crc32),
+    2: (INDEX_DTYPE, tile_checksum),
+}
+
+
 def _encode(tile: U8, codec: str, quality: int) -> bytes:
     if codec == "raw":
         h, w = tile.shape[:2]
@@ -235,8 +241,7 @@ class TileCache:
         self.dir = self.folder / TILES_SUBDIR
         self._rebuild = f"rebuild it with `viva-sitl footage ingest --tiles` (or delete {self.folder})"
         meta = self._read_meta()
-        self._checksum = CHECKSUMS[int(meta["version"])]
-        index_dtype = INDEX_DTYPE if self._checksum == "sum64" else INDEX_DTYPE_V1
+        index_dtype, self._checksum = FORMATS[int(meta["version"])]
         try:
             self.layout = TileLayout.of(int(meta["width_px"]), int(meta["height_px"]), int(meta["tile_px"]))
             self.frame_count = int(meta["frames"])
@@ -302,7 +307,7 @@ class TileCache:
         except (OSError, ValueError) as exc:
             raise self._error(f"tiles/meta.json is unreadable ({exc})") from None
         version = meta.get("version") if isinstance(meta, dict) else None
-        if type(version) is not int or version not in CHECKSUMS:
+        if type(version) is not int or version not in FORMATS:
             raise self._error("tiles/meta.json has an unknown format")
         return meta
 
@@ -333,8 +338,7 @@ class TileCache:
         where = f"frame {frame} level {level} tile ({tx}, {ty})"
         if len(data) != length:
             raise self._error(f"{where}: pack truncated")
-        check = tile_checksum(data) if self._checksum == "sum64" else zlib.crc32(data)
-        if check != int(rec["check"]):
+        if self._checksum(data) != int(rec["check"]):
             raise self._error(f"{where}: checksum mismatch")
         return data
 

@@ -29,6 +29,16 @@ from typing import Any
 from viva_sitl.footage.boxfiles import TrackFormat
 from viva_sitl.footage.errors import FootageError
 
+DERIVED_SUFFIX = ".tracks.csv"
+
+
+def derived_tracks_path(config_file: str | Path) -> Path | None:
+    """Where a footage's derived tracks live (`footage annotate` writes them, the world model reads them):
+    `<metadata stem>.tracks.csv` beside its metadata file; None when the footage has no .toml metadata file."""
+    cfg = Path(config_file)
+    return cfg.with_name(cfg.stem + DERIVED_SUFFIX) if cfg.suffix == ".toml" else None
+
+
 OBJECT_CLASS_LABELS = ("person", "bicycle", "car", "bus", "truck", "other", "moving object")
 _TRACK_KEYS = {"path", "format", "fps", "max_gap_frames", "class_map"}
 _RISK_KEYS = {"polygons", "raster", "default_level", "levels", "objects", "notes"}

@@ -28,6 +28,7 @@ from viva_sitl.footage.metadata import FootageKind, FootageMetadata
 from viva_sitl.footage.source import FootageSource
 from viva_sitl.footage.synthetic import SyntheticField
 from viva_sitl.footage.synthetic_actors import DEFAULT_ACTORS, actor_position_ne_m, scene_risk_polygons_ne_m
+from viva_sitl.footage.worldmeta import derived_tracks_path
 from viva_sitl.world.classes import ObjectClass
 from viva_sitl.world.risk import (
     DEFAULT_CLASS_LEVELS,
@@ -55,7 +56,6 @@ DEFAULT_OBJECT_RISK: dict[ObjectClass, ObjectRisk] = {
     ObjectClass.OTHER: ObjectRisk(3, 2.0),
     ObjectClass.MOVING: ObjectRisk(4, 3.0),
 }
-DERIVED_SUFFIX = ".tracks.csv"
 
 
 class WorldModel:
@@ -201,12 +201,9 @@ def world_from_source(src: FootageSource, meta: FootageMetadata | None = None) -
             fps = t.fps
         if still:
             frame_count = max((r.frame for r in rows), default=0) + 1
-    if meta.config_file.endswith(".toml"):
-        derived = (
-            Path(meta.config_file).with_suffix("").with_name(Path(meta.config_file).stem + DERIVED_SUFFIX)
-        )
-        if derived.is_file():
-            sources.append(TrackSource("motion", read_boxes(derived, TrackFormat.VIVA), None, True))
+    derived = derived_tracks_path(meta.config_file)
+    if derived is not None and derived.is_file():
+        sources.append(TrackSource("motion", read_boxes(derived, TrackFormat.VIVA), None, True))
     if meta.annotations_path and not synthetic:
         rows = annotation_rows(src, range(1 if still else src.frame_count))
         if still and frame_count > 1:  # static boxes over a still with tracks: present at every track frame
