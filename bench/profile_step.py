@@ -35,12 +35,21 @@ import bench_core as core  # noqa: E402
 
 def read_check(folder: Path, n: int = 3000) -> None:
     """us per tile: read() + checksum vs mmap slice + checksum (pages already in the page cache after pass 1)."""
+    import json
+
     import numpy as np
 
-    from viva_sitl.footage.tiles import INDEX_DTYPE, tile_checksum
+    from viva_sitl.footage.errors import FootageError
+    from viva_sitl.footage.tiles import FORMATS
 
     tdir = folder / "tiles"
-    idx = np.fromfile(tdir / "index.bin", INDEX_DTYPE)
+    try:
+        dtype, tile_checksum = FORMATS[int(json.loads((tdir / "meta.json").read_text())["version"])]
+    except (OSError, ValueError, KeyError, TypeError):
+        raise FootageError(
+            f"--read-check needs a tile cache folder (with a readable tiles/meta.json): {folder}"
+        ) from None
+    idx = np.fromfile(tdir / "index.bin", dtype)
     sel = np.flatnonzero(idx["length"] >= np.max(idx["length"]) * 0.9)[:n]  # full-size tiles
     packs = sorted(tdir.glob("pack-*.bin"))
 
@@ -104,6 +113,20 @@ def sweep_child(footage: Path, bound: bool) -> None:
 
 
 def main() -> int:
+    from viva_sitl.footage.errors import FootageError
+
+    try:
+        return _main()
+    except (FootageError, OSError) as exc:
+        print(f"profile_step.py: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        if "--sweep-child" not in sys.argv:  # the parent of a --sweep-mem child says it once
+            print("profile_step.py: interrupted (nothing is written)", file=sys.stderr)
+        return 130
+
+
+def _main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("footage", type=Path)
     ap.add_argument("--z", type=float, default=50.0)

@@ -203,13 +203,13 @@ def _write_metadata(
     lines += _ground_truth_lines(meta)
     if not all(math.isfinite(v) for v in (geometry.gsd_m_per_px, geometry.recording_altitude_m)):
         raise FootageError("ingest: non-finite geometry")
-    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
     # the source's derived tracks (`footage annotate`, `<metadata stem>.tracks.csv`) as of now, beside the copy's
-    # metadata where the world model looks for them
+    # metadata where the world model looks for them; before the metadata file, which marks the cache complete
     derived = derived_tracks_path(meta.config_file)
     copy = derived_tracks_path(path)
     if derived is not None and copy is not None and derived.is_file():
         shutil.copyfile(derived, copy)
+    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
 
 
 def _ground_truth_lines(meta: FootageMetadata) -> list[str]:
