@@ -149,24 +149,34 @@ def test_a_late_read_ahead_is_skipped_not_seeked(clip: Path) -> None:
         src.close()
 
 
-def test_region_pyramid_level_equals_lazy_pyramid_in_its_region() -> None:
+@pytest.mark.parametrize("channels", [3, 4])
+def test_region_pyramid_level_equals_lazy_pyramid_in_its_region(channels: int) -> None:
+    """channels=4 (what the simulator keeps): a BGR region is converted to BGRA as it is pasted, at the level and
+    at the next one, with the same B, G, R as the 3-channel pyramid and alpha 255."""
     rng = np.random.default_rng(5)
     img = rng.integers(0, 256, (72, 96, 3), dtype=np.uint8)
     lazy = LazyPyramid(img)
-    rp = RegionPyramid(96, 72)
-    assert len(rp) == len(lazy) and rp[0].shape == img.shape
-    for level, (x0, y0, x1, y1) in [
-        (0, (2, 4, 40, 30)),
-        (1, (4, 8, 96, 72)),
-        (2, (8, 0, 48, 36)),
-        (3, (0, 0, 96, 72)),
+    rp = RegionPyramid(96, 72, channels=channels)
+    assert len(rp) == len(lazy) and rp[0].shape == (72, 96, channels)
+    for level, (x0, y0, x1, y1), blend in [
+        (0, (2, 4, 40, 30), False),
+        (1, (4, 8, 96, 72), False),
+        (2, (8, 0, 48, 36), False),
+        (3, (0, 0, 96, 72), False),
+        (0, (4, 4, 40, 32), True),
+        (1, (8, 8, 96, 72), True),
     ]:
-        rp.fill(level, x0, y0, img[y0:y1, x0:x1])
-        s = 1 << level
-        got = rp[level][y0 // s : (y1 + s - 1) // s, x0 // s : (x1 + s - 1) // s]
-        want = lazy.level(level)[y0 // s : (y1 + s - 1) // s, x0 // s : (x1 + s - 1) // s]
-        assert np.array_equal(got, want), level
+        rp.fill(level, x0, y0, img[y0:y1, x0:x1], next_level=blend)
+        for lv in (level, level + 1) if blend else (level,):
+            s = 1 << lv
+            got = rp[lv][y0 // s : (y1 + s - 1) // s, x0 // s : (x1 + s - 1) // s]
+            want = lazy.level(lv)[y0 // s : (y1 + s - 1) // s, x0 // s : (x1 + s - 1) // s]
+            assert np.array_equal(got[..., :3], want), (level, lv)
+            if channels == 4:
+                assert (got[..., 3] == 255).all()
         assert rp.filled_level == level and rp.region_px == (x0, y0, x1, y1)
+    with pytest.raises(ValueError, match="channels"):
+        RegionPyramid(96, 72, channels=channels).fill(0, 0, 0, img[:8, :8, :2])
     with pytest.raises(ValueError, match="aligned"):
         rp.fill(2, 2, 0, img[0:8, 2:10])
     with pytest.raises(ValueError, match="exact halving"):

@@ -125,8 +125,9 @@ class Simulator:
             and not self.camera.has_distortion
         ):
             w, h = self.footage.frame_size_px
-            # tiles are converted to BGRA as they are pasted: the renderer's 4-channel warp reads them directly
-            self._region = RegionPyramid(w, h, channels=4 if isinstance(self.footage, TileSource) else 3)
+            # BGRA (video crops are converted to it, tiles as they are pasted): the renderer's 4-channel warp reads
+            # the region buffers directly
+            self._region = RegionPyramid(w, h, channels=4)
         # --- shared-decode hook (viva_sitl.gym): footage time = sim time + footage_offset_s. Copies of a vector
         # env flying over ONE FootageSource at the same footage time read the same decoded frame. ---
         self.footage_offset_s = 0.0
@@ -270,10 +271,9 @@ class Simulator:
         if self._pyramid_index == index and self._pyramid is not None:
             return None  # the whole frame is already converted (footage_frame was called): reuse it
         if isinstance(self.footage, TileSource):
-            return self._tile_region(index, s, self._region_with(4))
+            return self._tile_region(index, s, region)
         if not isinstance(self.footage, VideoSource):
             return None
-        region = self._region_with(3)
         plan = self._plan_region(s, region)
         if plan is None:
             return None
@@ -294,19 +294,12 @@ class Simulator:
             if img is None:  # not a 4:2:0 stream: never try again
                 self._region = None
                 return None
+            # converted to BGRA as it is pasted (a separate BGR -> BGRA pass of the warp's read box, and its
+            # buffer, are saved)
             region.fill(level, x0, y0, img, source_level=src_level, next_level=blend)
         region.key = key
         self._source_level_used = src_level
         return region, level
-
-    def _region_with(self, channels: int) -> RegionPyramid:
-        """The region buffers with `channels` channels (3: BGR from a video, 4: BGRA from tiles), replaced when the
-        footage was swapped for one of the other kind (the vector env assigns `footage`)."""
-        region = self._region
-        assert region is not None
-        if region.channels != channels:
-            region = self._region = RegionPyramid(region.width_px, region.height_px, channels=channels)
-        return region
 
     def _tile_region(
         self, index: int, s: EavState, region: RegionPyramid

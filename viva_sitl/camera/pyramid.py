@@ -104,6 +104,14 @@ class LazyPyramid:
             self.build_s += time.perf_counter() - t0
             return self._levels[index]
 
+    @staticmethod
+    def _paste(dst: U8, img: U8, to_bgra: bool) -> None:
+        """Copy `img` into `dst`; `to_bgra`: a BGR image into a BGRA buffer, converted in the same pass."""
+        if to_bgra:
+            cv2.cvtColor(img, cv2.COLOR_BGR2BGRA, dst=dst)
+        else:
+            dst[...] = img
+
     def __len__(self) -> int:
         return self.max_level + 1
 
@@ -226,6 +234,8 @@ class RegionPyramid(Sequence[U8]):
         size a multiple of 2^level (`exact_level`), so that each halving of the region is exact. `source_level` > 0:
         the region comes from a reduced copy of the frame (e.g. the ingest cache's half-resolution video) of the
         size of that level. `next_level`: also fill level + 1 (one more halving; the same constraints at level + 1).
+        A BGR region fills a BGRA pyramid (`channels=4`) converted as it is pasted (alpha 255; halving each channel
+        alone, so B, G, R equal those of a BGR pyramid).
         """
         check_image(region_bgr)
         if not 0 <= source_level <= level:
@@ -237,7 +247,8 @@ class RegionPyramid(Sequence[U8]):
             raise ValueError(
                 f"level {level} of a {self.width_px}x{self.height_px} frame is not an exact halving"
             )
-        if region_bgr.shape[2:] != (self.channels,):
+        to_bgra = self.channels == 4 and region_bgr.shape[2:] == (3,)
+        if region_bgr.shape[2:] != (self.channels,) and not to_bgra:
             raise ValueError(f"region must have {self.channels} channels, got shape {region_bgr.shape}")
         x1, y1 = x0 + w, y0 + h
         slack = (1 << source_level) - 1  # a reduced copy's last pixel may stand for fewer level-0 pixels
@@ -264,17 +275,24 @@ class RegionPyramid(Sequence[U8]):
         for _ in range(level - source_level):
             img = half_size(img)
         lx, ly = x0 >> level, y0 >> level
-        self._buffer(level, (lx, ly, lx + img.shape[1], ly + img.shape[0]))[
-            ly : ly + img.shape[0], lx : lx + img.shape[1]
-        ] = img
+        box = (lx, ly, lx + img.shape[1], ly + img.shape[0])
+        self._paste(self._buffer(level, box)[box[1] : box[3], box[0] : box[2]], img, to_bgra)
         self.filled_level = level
         self.filled_levels = {level}
         if next_level:
             img = half_size(img)
             box = (lx >> 1, ly >> 1, (lx >> 1) + img.shape[1], (ly >> 1) + img.shape[0])
-            self._buffer(level + 1, box)[box[1] : box[3], box[0] : box[2]] = img
+            self._paste(self._buffer(level + 1, box)[box[1] : box[3], box[0] : box[2]], img, to_bgra)
             self.filled_levels.add(level + 1)
         self.region_px = (x0, y0, x1, y1)
+
+    @staticmethod
+    def _paste(dst: U8, img: U8, to_bgra: bool) -> None:
+        """Copy `img` into `dst`; `to_bgra`: a BGR image into a BGRA buffer, converted in the same pass."""
+        if to_bgra:
+            cv2.cvtColor(img, cv2.COLOR_BGR2BGRA, dst=dst)
+        else:
+            dst[...] = img
 
     def __len__(self) -> int:
         return self.max_level + 1
