@@ -104,14 +104,6 @@ class LazyPyramid:
             self.build_s += time.perf_counter() - t0
             return self._levels[index]
 
-    @staticmethod
-    def _paste(dst: U8, img: U8, to_bgra: bool) -> None:
-        """Copy `img` into `dst`; `to_bgra`: a BGR image into a BGRA buffer, converted in the same pass."""
-        if to_bgra:
-            cv2.cvtColor(img, cv2.COLOR_BGR2BGRA, dst=dst)
-        else:
-            dst[...] = img
-
     def __len__(self) -> int:
         return self.max_level + 1
 
