@@ -561,3 +561,70 @@ def test_format_1_caches_with_crc32_stay_readable_and_checked(
                 src.frame(k)
     finally:
         src.close()
+
+
+def _odd_footage(path: Path, width: int, height: int, codec: str, pix_fmt: str, frames: int) -> Path:
+    """A short clip of moving 8 px blocks in a format the other tests do not write (PyAV's bundled encoders)."""
+    import av
+
+    rng = np.random.default_rng(width + height)
+    blocks = rng.integers(0, 256, (height // 8 + 1, width // 8 + 4, 3), dtype=np.uint8)
+    base = blocks.repeat(8, 0).repeat(8, 1)
+    try:
+        with av.open(str(path), "w") as out:
+            stream = out.add_stream(codec, rate=25)
+            stream.width, stream.height, stream.pix_fmt = width, height, pix_fmt
+            for i in range(frames):
+                img = np.ascontiguousarray(base[:height, 3 * i : 3 * i + width])
+                for packet in stream.encode(av.VideoFrame.from_ndarray(img, format="rgb24")):
+                    out.mux(packet)
+            for packet in stream.encode():
+                out.mux(packet)
+    except (av.FFmpegError, ValueError) as exc:
+        pytest.skip(f"PyAV here cannot write {codec}/{pix_fmt}: {exc}")
+    return path
+
+
+ODD_FOOTAGE = {
+    # name: (file, width, height, codec, pixel format, frames); the still is written with OpenCV
+    "odd-size-444": ("odd.mp4", 333, 221, "libx264", "yuv444p", 5),
+    "10-bit": ("ten.mp4", 320, 240, "libx264", "yuv420p10le", 5),
+    "vp9": ("vp9.webm", 320, 240, "libvpx-vp9", "yuv420p", 5),
+    "portrait": ("tall.mp4", 240, 320, "libx264", "yuv420p", 5),
+    "one-frame": ("one.mp4", 320, 240, "libx264", "yuv420p", 1),
+    "still": ("still.png", 401, 299, "", "", 1),
+}
+
+
+@pytest.mark.parametrize("kind", list(ODD_FOOTAGE))
+def test_footage_of_other_formats_gives_the_same_gym_images_over_its_raw_tile_cache(
+    kind: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Footage a user brings (odd sizes, 4:4:4, 10-bit, VP9, portrait, one frame, a still) flies in the gym env and
+    ingests into a tile cache; a seeded episode over the raw cache shows exactly the video's images."""
+    from viva_sitl.gym import LandingEnv
+
+    name, w, h, codec, pix_fmt, frames = ODD_FOOTAGE[kind]
+    if kind == "still":
+        path = tmp_path / name
+        cv2.imwrite(str(path), np.random.default_rng(7).integers(0, 256, (h, w, 3), dtype=np.uint8))
+    else:
+        path = _odd_footage(tmp_path / name, w, h, codec, pix_fmt, frames)
+    assert footage_main(["ingest", str(path), "--tiles", "--tile-codec", "raw", "-o", str(tmp_path / "t"),
+                         "--no-progress"]) == 0  # fmt: skip
+    assert "tiled" in capsys.readouterr().out
+    runs = []
+    for footage in (str(path), str(tmp_path / "t")):
+        env = LandingEnv(footage, image_size=(64, 48), max_episode_s=5.0)
+        try:
+            obs, _ = env.reset(seed=5)
+            images = [obs["image"]]
+            for _ in range(12):
+                obs, *_ = env.step(np.array([0.3, -0.2, 0.4, -0.5], np.float32))
+                images.append(obs["image"])
+        finally:
+            env.close()
+        runs.append(np.stack(images))
+    video, tiles = runs
+    assert video.std() > 10.0  # the footage's blocks, not a blank fill
+    assert np.array_equal(video, tiles)
