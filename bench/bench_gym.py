@@ -10,7 +10,7 @@ interchange clip upscaled to 3840x2160, 60 frames, 25 fps) as video, or its jpeg
 built by bench_tiles.py / `viva-sitl footage ingest --tiles`). Every copy hovers at --z over its own drawn start
 (a TrialSpec: north/east within +-15 % of the footage's smaller side, yaw drawn, footage time 0), so N copies render N
 different regions from the shared decode. The reference (`DroneEnv.step`, its own interpreter, same clip, hover at the
-same z, 640x480 view) runs in the same rounds, interleaved. Reported: median env steps/s, median wall and CPU ms per
+same z, 640x480 view) runs in the same rounds, interleaved (the order of the variants rotates by one each round). Reported: median env steps/s, median wall and CPU ms per
 env step, ratios (per-env step cost vs a single env; steps/s vs the reference). Load average printed per round: on a
 shared machine wall figures are depressed, CPU ms per step is the steadier figure.
 """
@@ -122,14 +122,19 @@ def main() -> None:
     time_single(footage, replace_steps(args, 5))
     runs: dict[str, list[tuple[float, float]]] = {"single": [], **{f"vec{n}": [] for n in args.ns}, "ref": []}
     loads = []
+    order = [k for k in runs if k != "ref" or ref is not None]
     for r in range(args.rounds):
         loads.append(loadavg())
-        if ref is not None:
-            sps, cpu_ms = ref.run()
-            runs["ref"].append((1e3 / sps, cpu_ms))
-        runs["single"].append(time_single(footage, args))
-        for n in args.ns:
-            runs[f"vec{n}"].append(time_vector(footage, n, args))
+        # the variants' order rotates from round to round: none is always the one timed right after the
+        # reference's process or first after a warm-up (on this VM the variant after the reference ran slower)
+        for k in order[r % len(order) :] + order[: r % len(order)]:
+            if k == "ref":
+                sps, cpu_ms = ref.run()  # type: ignore[union-attr]
+                runs["ref"].append((1e3 / sps, cpu_ms))
+            elif k == "single":
+                runs["single"].append(time_single(footage, args))
+            else:
+                runs[k].append(time_vector(footage, int(k[3:]), args))
         print(f"# round {r + 1}/{args.rounds} load {loads[-1]}: "
               + ", ".join(f"{k} {v[-1][0]:.1f} ms" for k, v in runs.items() if v), file=sys.stderr)  # fmt: skip
     if ref is not None:
