@@ -563,30 +563,8 @@ def test_format_1_caches_with_crc32_stay_readable_and_checked(
         src.close()
 
 
-def _odd_footage(path: Path, width: int, height: int, codec: str, pix_fmt: str, frames: int) -> Path:
-    """A short clip of moving 8 px blocks in a format the other tests do not write (PyAV's bundled encoders)."""
-    import av
-
-    rng = np.random.default_rng(width + height)
-    blocks = rng.integers(0, 256, (height // 8 + 1, width // 8 + 4, 3), dtype=np.uint8)
-    base = blocks.repeat(8, 0).repeat(8, 1)
-    try:
-        with av.open(str(path), "w") as out:
-            stream = out.add_stream(codec, rate=25)
-            stream.width, stream.height, stream.pix_fmt = width, height, pix_fmt
-            for i in range(frames):
-                img = np.ascontiguousarray(base[:height, 3 * i : 3 * i + width])
-                for packet in stream.encode(av.VideoFrame.from_ndarray(img, format="rgb24")):
-                    out.mux(packet)
-            for packet in stream.encode():
-                out.mux(packet)
-    except (av.FFmpegError, ValueError) as exc:
-        pytest.skip(f"PyAV here cannot write {codec}/{pix_fmt}: {exc}")
-    return path
-
-
 ODD_FOOTAGE = {
-    # name: (file, width, height, codec, pixel format, frames); the still is written with OpenCV
+    # name: (file, width, height, codec, pixel format, frames): coded clips (testclip); the still is random pixels
     "odd-size-444": ("odd.mp4", 333, 221, "libx264", "yuv444p", 5),
     "10-bit": ("ten.mp4", 320, 240, "libx264", "yuv420p10le", 5),
     "vp9": ("vp9.webm", 320, 240, "libvpx-vp9", "yuv420p", 5),
@@ -609,7 +587,12 @@ def test_footage_of_other_formats_gives_the_same_gym_images_over_its_raw_tile_ca
         path = tmp_path / name
         cv2.imwrite(str(path), np.random.default_rng(7).integers(0, 256, (h, w, 3), dtype=np.uint8))
     else:
-        path = _odd_footage(tmp_path / name, w, h, codec, pix_fmt, frames)
+        import av
+
+        try:
+            path = write_coded_clip(tmp_path / name, frames, w, h, fps=25, codec=codec, pix_fmt=pix_fmt)
+        except (av.FFmpegError, ValueError) as exc:
+            pytest.skip(f"PyAV here cannot write {codec}/{pix_fmt}: {exc}")
     assert footage_main(["ingest", str(path), "--tiles", "--tile-codec", "raw", "-o", str(tmp_path / "t"),
                          "--no-progress"]) == 0  # fmt: skip
     assert "tiled" in capsys.readouterr().out
@@ -626,5 +609,5 @@ def test_footage_of_other_formats_gives_the_same_gym_images_over_its_raw_tile_ca
             env.close()
         runs.append(np.stack(images))
     video, tiles = runs
-    assert video.std() > 10.0  # the footage's blocks, not a blank fill
+    assert video.std() > 10.0  # the footage's pattern, not a blank fill
     assert np.array_equal(video, tiles)

@@ -46,13 +46,21 @@ def write_coded_clip(
     fps: int = 30,
     gop: int = 10,
     bframes: int = 2,
+    codec: str = "libx264",
+    pix_fmt: str = "yuv420p",
 ) -> Path:
-    """H.264 clip of `frames` coded frames (keyframe every `gop`, with B-frames to exercise reordering)."""
+    """H.264 clip of `frames` coded frames (keyframe every `gop`, with B-frames to exercise reordering).
+
+    `codec`, `pix_fmt`: another of PyAV's encoders or pixel formats (e.g. "libvpx-vp9", "yuv444p", "yuv420p10le"):
+    the footage formats a user may bring; `gop` and `bframes` apply to libx264 only."""
     with av.open(str(path), mode="w") as out:
-        st = out.add_stream("libx264", rate=fps)
-        st.width, st.height, st.pix_fmt = width_px, height_px, "yuv420p"
+        st = out.add_stream(codec, rate=fps)
+        if not isinstance(st, av.video.stream.VideoStream):
+            raise ValueError(f"{codec!r} is not a video encoder")
+        st.width, st.height, st.pix_fmt = width_px, height_px, pix_fmt
         st.codec_context.time_base = Fraction(1, fps)
-        st.options = {"preset": "ultrafast", "g": str(gop), "bf": str(bframes), "crf": "20"}
+        if codec == "libx264":
+            st.options = {"preset": "ultrafast", "g": str(gop), "bf": str(bframes), "crf": "20"}
         for i in range(frames):
             f = av.VideoFrame.from_ndarray(coded_frame(i, width_px, height_px), format="bgr24")
             f.pts = i
