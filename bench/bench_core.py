@@ -77,6 +77,17 @@ SONGDO_REL_ALT_M = 3840 * 0.05 / (2.0 * math.tan(math.radians(DEFAULT_HFOV_DEG /
 # ---------------------------------------------------------------------------------------------- footage
 
 
+def size_arg(text: str) -> str:
+    """argparse type of a view size "WxH" (each >= 8 px): the text itself, or argparse's one-line error."""
+    try:
+        w, h = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be WxH, e.g. 640x480, got {text!r}") from None
+    if w < 8 or h < 8:
+        raise argparse.ArgumentTypeError(f"must be at least 8x8, got {text!r}")
+    return text
+
+
 def add_tile_cache_arg(ap: argparse.ArgumentParser) -> None:
     """`--tile-cache-mb` of the benches that fly over tile caches (see `apply_tile_cache`)."""
     ap.add_argument(
@@ -232,11 +243,11 @@ class Reference:
     def close(self) -> None:
         if self.proc.poll() is None:
             assert self.proc.stdin is not None
-            self.proc.stdin.write("quit\n")
-            self.proc.stdin.flush()
             try:
+                self.proc.stdin.write("quit\n")
+                self.proc.stdin.flush()
                 self.proc.wait(timeout=10)
-            except subprocess.TimeoutExpired:
+            except (OSError, subprocess.TimeoutExpired):  # gone already (a Ctrl-C reached it too) or hung
                 self.proc.kill()
                 self.proc.wait()
 
@@ -557,7 +568,7 @@ def main() -> int:
     ap.add_argument("--rel-alt", type=float, default=DEFAULT_REL_ALT_M, help="recording altitude z_o, m")
     ap.add_argument("--z", type=float, default=50.0, help="hover altitude, m above ground")
     ap.add_argument("--yaw-deg", type=float, default=30.0, help="yaw (reference convention, CCW)")
-    ap.add_argument("--out-size", default="640x480")
+    ap.add_argument("--out-size", type=size_arg, default="640x480")
     ap.add_argument("--steps", type=int, default=120, help="steps per timed run")
     ap.add_argument(
         "--rounds", type=int, default=5, help="interleaved rounds (each: ref, then every variant)"

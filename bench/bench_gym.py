@@ -10,9 +10,10 @@ interchange clip upscaled to 3840x2160, 60 frames, 25 fps) as video, or its jpeg
 built by bench_tiles.py / `viva-sitl footage ingest --tiles`). Every copy hovers at --z over its own drawn start
 (a TrialSpec: north/east within +-15 % of the footage's smaller side, yaw drawn, footage time 0), so N copies render N
 different regions from the shared decode. The reference (`DroneEnv.step`, its own interpreter, same clip, hover at the
-same z, 640x480 view) runs in the same rounds, interleaved (the order of the variants rotates by one each round). Reported: median env steps/s, median wall and CPU ms per
-env step, ratios (per-env step cost vs a single env; steps/s vs the reference). Load average printed per round: on a
-shared machine wall figures are depressed, CPU ms per step is the steadier figure.
+same z, 640x480 view) runs in the same rounds, interleaved; the order of the variants rotates by one each round.
+Reported: median env steps/s, median wall and CPU ms per env step, ratios (per-env step cost vs a single env; steps/s
+vs the reference). Load average printed per round: on a shared machine wall figures are depressed, CPU ms per step
+is the steadier figure.
 """
 
 from __future__ import annotations
@@ -86,7 +87,7 @@ def time_vector(footage: str, n: int, args: argparse.Namespace) -> tuple[float, 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--footage", choices=("video", "tiles"), default="video")
-    ap.add_argument("--image-size", default="640x480")
+    ap.add_argument("--image-size", type=core.size_arg, default="640x480")
     ap.add_argument("--z", type=float, default=50.0, help="hover altitude, m")
     ap.add_argument("--ns", type=int, nargs="+", default=[1, 2, 4, 8])
     ap.add_argument("--steps", type=int, default=60, help="env steps (vector: vector steps) per timed run")
@@ -118,27 +119,32 @@ def main() -> None:
         ref = core.Reference(args.ref_python, clip, ns)  # type: ignore[arg-type]
     else:
         print(f"# reference skipped: {why}", file=sys.stderr)
-    # warm-up (imports, world build, first decode) untimed
-    time_single(footage, replace_steps(args, 5))
     runs: dict[str, list[tuple[float, float]]] = {"single": [], **{f"vec{n}": [] for n in args.ns}, "ref": []}
     loads = []
     order = [k for k in runs if k != "ref" or ref is not None]
-    for r in range(args.rounds):
-        loads.append(loadavg())
-        # the variants' order rotates from round to round: none is always the one timed right after the
-        # reference's process or first after a warm-up (on this VM the variant after the reference ran slower)
-        for k in order[r % len(order) :] + order[: r % len(order)]:
-            if k == "ref":
-                sps, cpu_ms = ref.run()  # type: ignore[union-attr]
-                runs["ref"].append((1e3 / sps, cpu_ms))
-            elif k == "single":
-                runs["single"].append(time_single(footage, args))
-            else:
-                runs[k].append(time_vector(footage, int(k[3:]), args))
-        print(f"# round {r + 1}/{args.rounds} load {loads[-1]}: "
-              + ", ".join(f"{k} {v[-1][0]:.1f} ms" for k, v in runs.items() if v), file=sys.stderr)  # fmt: skip
-    if ref is not None:
-        ref.close()
+    try:
+        # warm-up (imports, world build, first decode) untimed
+        time_single(footage, replace_steps(args, 5))
+        for r in range(args.rounds):
+            loads.append(loadavg())
+            # the variants' order rotates from round to round: none is always the one timed right after the
+            # reference's process or first after a warm-up (on this VM the variant after the reference ran slower)
+            for k in order[r % len(order) :] + order[: r % len(order)]:
+                if k == "ref" and ref is not None:
+                    sps, cpu_ms = ref.run()
+                    runs["ref"].append((1e3 / sps, cpu_ms))
+                elif k == "single":
+                    runs["single"].append(time_single(footage, args))
+                else:
+                    runs[k].append(time_vector(footage, int(k[3:]), args))
+            print(f"# round {r + 1}/{args.rounds} load {loads[-1]}: "
+                  + ", ".join(f"{k} {v[-1][0]:.1f} ms" for k, v in runs.items() if v), file=sys.stderr)  # fmt: skip
+    except KeyboardInterrupt:
+        print("bench_gym.py: interrupted", file=sys.stderr)
+        raise SystemExit(130) from None
+    finally:
+        if ref is not None:
+            ref.close()
     med = {
         k: (statistics.median(w for w, _ in v), statistics.median(c for _, c in v))
         for k, v in runs.items()

@@ -327,7 +327,7 @@ def main() -> int:
     ap.add_argument("--rel-alt", type=float, default=core.DEFAULT_REL_ALT_M)
     ap.add_argument("--z", type=float, nargs="*", default=[50.0, 300.0])
     ap.add_argument("--yaw-deg", type=float, default=30.0)
-    ap.add_argument("--out-size", default="640x480")
+    ap.add_argument("--out-size", type=core.size_arg, default="640x480")
     ap.add_argument("--steps", type=int, default=120)
     ap.add_argument("--rounds", type=int, default=3)
     ap.add_argument(

@@ -25,6 +25,9 @@ import sys
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO / "bench"))
+
+from bench_core import size_arg  # noqa: E402
 
 CHILD = r"""
 import json, sys, time
@@ -60,9 +63,11 @@ if split:
     for _ in range(reps):
         for s in states:
             c0, t0 = time.process_time(), time.perf_counter()
-            region, level = sim._region_pyramid(index, s)
+            planned = sim._region_pyramid(index, s)
+            if planned is None:
+                sys.exit(f"--split: the view at {s.pos_ned_m.tolist()} renders from the whole frame, not a region")
             c1, t1 = time.process_time(), time.perf_counter()
-            sim.renderer.render(region, s.pos_ned_m, s.att_rpy_rad, s.vel_ned_m_s, sim.camera_rng)
+            sim.renderer.render(planned[0], s.pos_ned_m, s.att_rpy_rad, s.vel_ned_m_s, sim.camera_rng)
             c2, t2 = time.process_time(), time.perf_counter()
             acc = [acc[0] + t1 - t0, acc[1] + c1 - c0, acc[2] + t2 - t1, acc[3] + c2 - c1]
     print(json.dumps([1e3 * (acc[0] + acc[2]) / n, 1e3 * (acc[1] + acc[3]) / n] + [1e3 * a / n for a in acc]))
@@ -94,7 +99,7 @@ def main() -> None:
     ap.add_argument("--reps", type=int, default=60)
     ap.add_argument("--rounds", type=int, default=5)
     ap.add_argument("--z", type=float, default=50.0)
-    ap.add_argument("--image-size", default="640x480")
+    ap.add_argument("--image-size", type=size_arg, default="640x480")
     ap.add_argument("--cv-threads", type=int, default=None, help="cv2.setNumThreads in the runs")
     ap.add_argument("--split", action="store_true", help="also time region (plan, crop, fill) and warp apart")
     args = ap.parse_args()
@@ -112,7 +117,8 @@ def main() -> None:
             print(f"# round {r + 1}/{args.rounds} load {load}: "
                   + ", ".join(f"{k} {v[-1][0]:.3f} / {v[-1][1]:.3f} ms" for k, v in res.items()), file=sys.stderr)  # fmt: skip
     except KeyboardInterrupt:
-        raise SystemExit("bench_views.py: interrupted") from None
+        print("bench_views.py: interrupted", file=sys.stderr)
+        raise SystemExit(130) from None
     print(f"{args.views} views of {args.image_size} at z {args.z} m over one decoded 4K frame, {args.reps} reps, "
           f"{args.rounds} rounds, {os.cpu_count()} cores")  # fmt: skip
     if args.split:
