@@ -1,4 +1,5 @@
-"""`[perception.sr]` (issue 9 §4): config -> SRConfig -> the vehicle's simulator; a bad model is one line at start-up."""
+"""`[perception.sr]` (issue 9 §4): config -> SRConfig -> super_resolution_from_config -> the vehicle's simulator (built
+once per vehicle, kept across resets); a bad model is one line at start-up."""
 
 from __future__ import annotations
 
@@ -11,6 +12,7 @@ import pytest
 
 from viva_sitl.config import ConfigError, SimConfig
 from viva_sitl.perception import MagnifiedRender, OpenCVSR, SRMethod
+from viva_sitl.perception.sr import super_resolution_from_config
 from viva_sitl.vehicle import Vehicle
 
 REPO = Path(__file__).resolve().parents[1]
@@ -42,9 +44,11 @@ model_path = "{fsrcnn}"
 min_magnification = 1.5
 """))  # fmt: skip
     assert cfg.perception.sr.method is SRMethod.FSRCNN and cfg.perception.sr.min_magnification == 1.5
-    with Vehicle(cfg) as v:
+    with Vehicle(cfg, super_resolution=super_resolution_from_config(cfg)) as v:
         sr = v.sim.super_resolution
         assert isinstance(sr, MagnifiedRender) and isinstance(sr.upscaler, OpenCVSR)
+        v.reset()
+        assert v.sim.super_resolution is sr  # loaded once per vehicle: a reset keeps the model
         assert sr.upscaler.scale == 2 and sr.min_magnification == 1.5
         v.sim.reset(pos_ned_m=(0.0, 0.0, -400.0))
         v.render()
@@ -60,6 +64,7 @@ min_magnification = 1.5
 def test_default_config_has_no_sr() -> None:
     assert SimConfig().perception.sr.method is SRMethod.NONE
     assert SimConfig.load(REPO / "configs" / "default.toml").perception.sr.method is SRMethod.NONE
+    assert super_resolution_from_config(SimConfig()) is None
     with Vehicle(SimConfig()) as v:
         assert v.sim.super_resolution is None
 
@@ -80,7 +85,7 @@ def test_default_config_has_no_sr() -> None:
 def test_bad_sr_config_is_one_line(tmp_path: Path, body: str, needle: str) -> None:
     path = _write(tmp_path, body)
     with pytest.raises(ConfigError, match="perception"):
-        Vehicle(SimConfig.load(path))
+        super_resolution_from_config(SimConfig.load(path))
     # the same at start-up of `viva-sitl run`: one line, exit status 2, no traceback, nothing bound
     proc = subprocess.run(
         [sys.executable, "-m", "viva_sitl", "run", "--config", str(path), "--no-video", "--duration", "1",

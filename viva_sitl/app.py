@@ -29,8 +29,9 @@ from viva_sitl.dashboard.layers import world_layers
 from viva_sitl.dashboard.overview import LayerProvider
 from viva_sitl.dashboard.server import Dashboard
 from viva_sitl.dynamics import EavState, floats3
+from viva_sitl.evaluation.episode import scenario_config
 from viva_sitl.evaluation.monitor import Limits
-from viva_sitl.evaluation.session import ScenarioSession, read_scenario_file, scenario_config
+from viva_sitl.evaluation.session import ScenarioSession, read_scenario_file
 from viva_sitl.evaluation.spec import Scenario
 from viva_sitl.footage import open_footage
 from viva_sitl.footage.loader import resolve_metadata
@@ -38,6 +39,7 @@ from viva_sitl.frame import RenderedFrame
 from viva_sitl.geo import GeoOrigin, home_from_env
 from viva_sitl.mavlink import CameraInfo, CaptureResult, MavlinkEndpoint, StreamEncoding, VideoStreamSpec
 from viva_sitl.mavlink.endpoint import EndpointStartError
+from viva_sitl.perception.sr import super_resolution_from_config
 from viva_sitl.recording import TRAJECTORY_FILE, Sample, TrajectoryRecorder, write_run_info
 from viva_sitl.sim import Simulator
 from viva_sitl.vehicle import Vehicle
@@ -73,7 +75,7 @@ class SitlApp:
         scenario: tuple[Scenario, Limits] | None = None,
     ) -> None:
         self.config = config
-        self.vehicle = Vehicle(config)
+        self.vehicle = Vehicle(config, super_resolution=super_resolution_from_config(config))
         self.sim: Simulator = self.vehicle.sim
         self.params: ParamStore = self.vehicle.params
         self.boot_wall_time_s = time.time()
@@ -206,7 +208,7 @@ class SitlApp:
                 ap.mode.name,
                 bool(ap.armed),
                 ap.landed_state.name,
-                int(self.sim.footage.frame_index_at(float(s.time_s))),
+                self.sim.footage_index(float(s.time_s)),
                 100.0 * float(ap.battery_remaining),
                 float(ap.battery_voltage_v),
             )

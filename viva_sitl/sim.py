@@ -208,6 +208,17 @@ class Simulator:
     def time_s(self) -> float:
         return self.state.time_s
 
+    # --- the footage clock ---------------------------------------------------------------
+    def footage_time_s(self, time_s: float | None = None) -> float:
+        """Footage time at sim time `time_s` (default: now): sim time + footage_offset_s, the ONE footage clock
+        (an episode's start time in the footage, a vector env copy's slot); FootageSource.frame_index_at maps it
+        to a frame (looping, stills)."""
+        return float(self.state.time_s if time_s is None else time_s) + self.footage_offset_s
+
+    def footage_index(self, time_s: float | None = None) -> int:
+        """The footage frame shown at sim time `time_s` (default: now)."""
+        return int(self.footage.frame_index_at(self.footage_time_s(time_s)))
+
     # --- camera --------------------------------------------------------------------------
     def footage_frame(self, time_s: float) -> tuple[int, LazyPyramid]:
         """The footage frame at footage time t (sim time + footage_offset_s; deterministic, looping) and its cached

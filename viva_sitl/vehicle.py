@@ -23,28 +23,14 @@ from pathlib import Path
 
 from viva_sitl.autopilot import Autopilot, ParamStore
 from viva_sitl.camera import Mount
-from viva_sitl.config import ConfigError, SimConfig
+from viva_sitl.config import SimConfig
 from viva_sitl.dynamics import EavCommand, EavParams, EavState
 from viva_sitl.footage import FootageSource
 from viva_sitl.frame import RenderedFrame
 from viva_sitl.geo import GeoOrigin
-from viva_sitl.perception.errors import PerceptionError
-from viva_sitl.perception.sr import MagnifiedRender, SRMethod, magnified_render_from_config
-from viva_sitl.sim import Simulator
+from viva_sitl.sim import MagnifiedRenderLike, Simulator
 
 InsideFn = Callable[[float, float], bool]
-
-
-def super_resolution_from_config(config: SimConfig) -> MagnifiedRender | None:
-    """`[perception.sr]` -> what Simulator.super_resolution holds (None: method none); its model loads here, so a
-    bad model path or a missing extra is one ConfigError at start-up, not a failure at the first low frame."""
-    sr = config.perception.sr
-    if sr.method is SRMethod.NONE:
-        return None
-    try:
-        return magnified_render_from_config(sr)
-    except PerceptionError as exc:
-        raise ConfigError(f"[perception.sr]: {exc}") from None
 
 
 log = logging.getLogger("viva_sitl.vehicle")
@@ -52,7 +38,9 @@ log = logging.getLogger("viva_sitl.vehicle")
 
 class Vehicle:
     """The simulator + ParamStore + Autopilot. `geofence`: True = the footage edge (Simulator.inside_footage),
-    False = no fence (an open world), or any (north_m, east_m) -> bool test."""
+    False = no fence (an open world), or any (north_m, east_m) -> bool test. `super_resolution`: the render hook
+    for low, magnified views (viva_sitl.perception.sr.super_resolution_from_config(config) builds the one a config's
+    [perception.sr] asks for; the caller builds it, so the core never imports perception); kept across resets."""
 
     def __init__(
         self,
@@ -63,6 +51,7 @@ class Vehicle:
         params: ParamStore | None = None,
         region_render: bool = True,
         prefetch: bool = False,
+        super_resolution: MagnifiedRenderLike | None = None,
     ) -> None:
         self.config = config or SimConfig()
         self.sim = Simulator(self.config, footage, region_render=region_render, prefetch=prefetch)
@@ -84,7 +73,7 @@ class Vehicle:
         else:
             self.inside = geofence
         self.autopilot = Autopilot(self.params, self.config.physics, inside=self.inside)
-        self.sim.super_resolution = super_resolution_from_config(self.config)
+        self.sim.super_resolution = super_resolution
         self.autopilot.start(self.time_s, self.state)  # home and pre-arm checks valid before the first step
         self.steps = 0  # physics steps since construction (all resets included)
         self._applied: EavParams = self.sim.params
@@ -120,7 +109,6 @@ class Vehicle:
         autopilot has seen the initial state: arming is possible before the first step."""
         state = self.sim.reset(seed, pos_ned_m, yaw_rad, vel_ned_m_s)
         self.autopilot = Autopilot(self.params, self.config.physics, inside=self.inside)
-        self.sim.super_resolution = super_resolution_from_config(self.config)
         self.autopilot.start(state.time_s, state)
         self._sync_params()
         return state

@@ -53,6 +53,7 @@ import numpy as np
 from viva_sitl.autopilot.commander import Commander
 from viva_sitl.autopilot.context import FlightContext, InsideFn
 from viva_sitl.autopilot.failsafe import battery_level, battery_warning
+from viva_sitl.autopilot.failures import Failures, FailureType, FailureUnit
 from viva_sitl.autopilot.geofence import Geofence, RallyPoint
 from viva_sitl.autopilot.land_detector import LandDetector, Transition
 from viva_sitl.autopilot.orbit import Orbit
@@ -79,6 +80,7 @@ class Autopilot:
         self.eav = eav  # the airframe as configured; eav_params() applies the SIM_* parameters on top
         self.inside = inside
         self.ctx = FlightContext(params, eav, inside)
+        self.failures = Failures()  # injected failures (inject_failure): read where each one acts
         self.ctx.sync_sim_params_from(eav)
         self.tasks = FlightTasks(self.ctx)
         self.land_detector = LandDetector(params)
@@ -240,7 +242,31 @@ class Autopilot:
         return self.tasks.manual.set_input(now_s, manual)
 
     def gcs_heartbeat(self, now_s: float) -> None:  # for NAV_DLL_ACT link-loss
+        if self.failures.is_active(FailureUnit.SYSTEM_MAVLINK_SIGNAL):
+            return  # an injected link failure: the ground station is not heard
         self.commander.gcs_heartbeat(now_s)
+
+    # --- failure injection and announcements (MAV_CMD_INJECT_FAILURE, the trials' events) ----------
+    def inject_failure(
+        self,
+        now_s: float,
+        unit: FailureUnit | int,
+        ftype: FailureType | int,
+        instance: int = 0,
+        *,
+        check_enabled: bool = True,
+    ) -> Outcome:
+        """PX4's MAV_CMD_INJECT_FAILURE (autopilot/failures.py says what each failure does). Refused (DENIED)
+        unless SYS_FAILURE_EN = 1 when `check_enabled`; the simulator's own scenario failures pass False."""
+        del now_s  # every supported failure acts from the next control step on
+        return self.failures.inject(
+            unit, ftype, instance, self.ctx.params, self.ctx.battery, check_enabled=check_enabled
+        )
+
+    def announce(self, severity: Severity, text: str) -> None:
+        """A message from outside the flight logic (the trial's "land now", an operator note) sent as the
+        vehicle's STATUSTEXT, in order with the autopilot's own events (pop_events)."""
+        self.ctx.event(severity, text)
 
     # --- the control loop: called once per physics step -------------------------------
     def start(self, now_s: float, state: EavState) -> None:

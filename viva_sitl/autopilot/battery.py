@@ -26,8 +26,11 @@ class Battery:
 
     used_mah: float = 0.0
     current_a: float = 0.0
+    forced_empty: bool = False  # an injected SYSTEM_BATTERY OFF failure (autopilot/failures.py): reads empty
 
     def remaining(self, cfg: BatteryConfig) -> float:
+        if self.forced_empty:
+            return 0.0
         r = 1.0 - self.used_mah / cfg.capacity_mah
         return max(cfg.min_remaining, min(1.0, r))
 

@@ -311,7 +311,8 @@ class Dashboard:
         geom = self.geometry
         t = float(app.time_s)
         footage = app.sim.footage
-        index = int(footage.frame_index_at(t))
+        index = app.sim.footage_index(t)
+        footage_t = app.sim.footage_time_s(t)  # the layers' ground truth runs on the footage clock
         n, e, d = pos
         yaw = rpy[2]
         ground_z = float(ap.eav.ground_z_ned_m)
@@ -337,7 +338,7 @@ class Dashboard:
             if getattr(layer, "static", False):  # the same at every time: sent once, in /api/info
                 continue
             try:
-                layers[layer.name] = layer.features(t, index)
+                layers[layer.name] = layer.features(footage_t, index)
             except Exception:  # a faulty provider must not take the HUD down
                 log.exception("dashboard layer %s failed", layer.name)
                 layers[layer.name] = []
@@ -456,7 +457,7 @@ class Dashboard:
         for layer in self.layers:
             if getattr(layer, "static", False):
                 try:
-                    out[layer.name] = layer.features(float(self.app.time_s), 0)
+                    out[layer.name] = layer.features(self.app.sim.footage_time_s(), 0)
                 except Exception:
                     log.exception("dashboard layer %s failed", layer.name)
                     out[layer.name] = []
@@ -471,7 +472,7 @@ class Dashboard:
             req = CropRequest.parse(dict(request.query), g.width_px, g.height_px, self.config.overview_max_px)
         except ValueError as exc:
             raise web.HTTPBadRequest(text=f"overview: {exc}") from None
-        index = int(self.app.sim.footage.frame_index_at(float(self.app.time_s)))
+        index = self.app.sim.footage_index(float(self.app.time_s))
         try:
             data = await self.overview.crop(index, req)
         except Exception as exc:

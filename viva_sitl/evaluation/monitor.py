@@ -11,7 +11,8 @@ the pilot (set by the runner).
 Event schedule (times in s after the start): "land now" at land_at_s (an event the pilot sees: in-process in the
 observation, over MAVLink as a STATUSTEXT "Emergency: land now"); failures: gcs_link_lost (the virtual ground station
 stops being heard: PX4's NAV_DLL_ACT link-loss failsafe after COM_DL_LOSS_T), battery_critical (the battery
-drops below BAT_CRIT_THR: PX4's "Critical battery level! Land now" warning).
+drops below BAT_CRIT_THR: PX4's "Critical battery level! Land now" warning); each through
+Autopilot.inject_failure, as MAV_CMD_INJECT_FAILURE (FAILURES maps a kind to its unit and type).
 """
 
 from __future__ import annotations
@@ -24,7 +25,9 @@ from pathlib import Path
 from typing import Any, Protocol
 
 from viva_sitl.autopilot import Autopilot, ParamStore, Severity
+from viva_sitl.autopilot.failures import FailureType, FailureUnit
 from viva_sitl.dynamics import EavState
+from viva_sitl.evaluation.ends import TrialEnd
 from viva_sitl.evaluation.spec import Scenario
 
 # The trial log (its own columns, for scoring); `run`'s 30 Hz trajectory.csv (viva_sitl/recording.py, for replay)
@@ -36,6 +39,14 @@ TRAJECTORY_COLUMNS = (
     "yaw_rad", "thrust_n", "mode", "armed", "landed", "battery_remaining", "inside_footage",
 )  # fmt: skip
 LAND_NOW_TEXT = "Emergency: land now"
+INJECTED_PREFIX = (
+    "injected:"  # the trial's failure events ("injected: GCS link lost"), also sent as STATUSTEXT
+)
+# a scenario's failure kind -> the MAV_CMD_INJECT_FAILURE it is (autopilot/failures.py) and the event's text
+FAILURES: dict[str, tuple[FailureUnit, FailureType, str]] = {
+    "gcs_link_lost": (FailureUnit.SYSTEM_MAVLINK_SIGNAL, FailureType.OFF, "GCS link lost"),
+    "battery_critical": (FailureUnit.SYSTEM_BATTERY, FailureType.WRONG, "battery critical"),
+}
 GCS_HEARTBEAT_PERIOD_S = 1.0
 
 
@@ -183,12 +194,17 @@ class TrialMonitor:
             self.land_now = True
             self.log.land_now_t_s = round(t, 6)
             self.event(t, "land_now", LAND_NOW_TEXT, int(Severity.ALERT))
-        elif kind == "gcs_link_lost":
-            cut_gcs_link(v.autopilot)
-            self.event(t, "failure", "injected: GCS link lost", int(Severity.CRITICAL))
-        elif kind == "battery_critical":
-            inject_battery_critical(v)
-            self.event(t, "failure", "injected: battery critical", int(Severity.CRITICAL))
+            return
+        unit, ftype, what = FAILURES[kind]
+        # the simulator's own injection: through the autopilot's MAV_CMD_INJECT_FAILURE path, not gated by
+        # SYS_FAILURE_EN (which gates a pilot's or ground station's command)
+        out = v.autopilot.inject_failure(float(v.state.time_s), unit, ftype, check_enabled=False)
+        if out.ok:
+            self.event(t, "failure", f"{INJECTED_PREFIX} {what}", int(Severity.CRITICAL))
+        else:
+            self.event(
+                t, "failure", f"{INJECTED_PREFIX} {what} refused: {out.reason}", int(Severity.CRITICAL)
+            )
 
     def after_step(self, v: MonitoredVehicle) -> None:
         s = v.state
@@ -229,7 +245,7 @@ class TrialMonitor:
             self.event(t, "touchdown", f"touchdown at N{td.north_m:.2f} E{td.east_m:.2f}: vertical "
                        f"{td.vertical_speed_m_s:.2f} m/s, horizontal {td.horizontal_speed_m_s:.2f} m/s")  # fmt: skip
             if math.hypot(td.vertical_speed_m_s, td.horizontal_speed_m_s) > self.limits.crash_speed_m_s:
-                self._end(v, s, t, "crash", f"touchdown at {math.hypot(td.vertical_speed_m_s, td.horizontal_speed_m_s):.2f} m/s "
+                self._end(v, s, t, TrialEnd.CRASH, f"touchdown at {math.hypot(td.vertical_speed_m_s, td.horizontal_speed_m_s):.2f} m/s "
                           f"> crash_speed_m_s {self.limits.crash_speed_m_s:g}")  # fmt: skip
                 return
         elif not s.landed and prev.landed and self.log.touchdown is not None:
@@ -246,7 +262,11 @@ class TrialMonitor:
                     self.event(t, "outside", "ground point left the footage")
                 elif t - self._outside_since >= self.limits.end_outside_s:
                     self._end(
-                        v, s, t, "left_footage", f"outside the footage for {self.limits.end_outside_s:g} s"
+                        v,
+                        s,
+                        t,
+                        TrialEnd.LEFT_FOOTAGE,
+                        f"outside the footage for {self.limits.end_outside_s:g} s",
                     )
                     return
             elif self._outside_since is not None:
@@ -255,9 +275,9 @@ class TrialMonitor:
         if not self._inside:
             self.log.outside_s += dt
         if self._flown and s.landed and not armed:
-            self._end(v, s, t, "landed", "touchdown and disarm")
+            self._end(v, s, t, TrialEnd.LANDED, "touchdown and disarm")
         elif t >= self.limits.timeout_s - 1e-9:
-            self._end(v, s, t, "timeout", f"not landed and disarmed after {self.limits.timeout_s:g} s")
+            self._end(v, s, t, TrialEnd.TIMEOUT, f"not landed and disarmed after {self.limits.timeout_s:g} s")
 
     def _sample(self, v: MonitoredVehicle, s: EavState, t: float) -> None:
         p, vel, att = s.pos_ned_m, s.vel_ned_m_s, s.att_rpy_rad
@@ -281,18 +301,3 @@ class TrialMonitor:
         self._sample(v, s, t)
         self.log.end, self.log.end_detail, self.log.end_t_s = end, detail, t
         self.event(t, "end", f"{end}: {detail}")
-
-
-def inject_battery_critical(v: MonitoredVehicle) -> None:
-    """Drain the battery to just below BAT_CRIT_THR now (SIM_BAT_MIN_PCT 0 so it may go that low): PX4's
-    "Critical battery level! Land now" warning follows at the next control step."""
-    p, battery = v.params, v.autopilot.ctx.battery
-    target = max(0.0, p.get("BAT_CRIT_THR") - 0.01)
-    p.set("SIM_BAT_MIN_PCT", 0.0)
-    battery.used_mah = max(battery.used_mah, p.get("BAT1_CAPACITY") * (1.0 - target))
-
-
-def cut_gcs_link(autopilot: Autopilot) -> None:
-    """From now on this autopilot hears no ground-station heartbeat (the radio link is gone; an onboard API link
-    keeps working): PX4's data-link-loss failsafe (COM_DL_LOSS_T, NAV_DLL_ACT) follows as on a real vehicle."""
-    setattr(autopilot, "gcs_heartbeat", lambda now_s: None)  # noqa: B010 - instance override, this flight only

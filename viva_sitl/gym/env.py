@@ -74,9 +74,9 @@ from numpy.typing import NDArray
 from viva_sitl.autopilot.types import FlightMode, PositionTarget
 from viva_sitl.config import SimConfig
 from viva_sitl.dynamics import EavCommand, EavState
+from viva_sitl.evaluation.ends import TrialEnd
+from viva_sitl.evaluation.episode import ControlSchedule, Episode, limits_of, prepare
 from viva_sitl.evaluation.monitor import Limits, TrialMonitor
-from viva_sitl.evaluation.runner import limits_of, monitored_step
-from viva_sitl.evaluation.scoring import score_trial
 from viva_sitl.evaluation.spec import Scenario, TrialSpec, footage_box_of
 from viva_sitl.footage import FootageSource, open_footage
 from viva_sitl.footage.synthetic import SyntheticField
@@ -208,7 +208,7 @@ class LandingEnv(gym.Env[Any, NDArray[np.float32]]):
             # windows differ by a grey level: draw in line so that seeded rollouts are bit-identical
             source.params = replace(source.params, draw_ahead=False)
         self.footage = source
-        self.vehicle = Vehicle(cfg, footage=source, geofence=True)
+        self.vehicle = Vehicle(cfg, footage=source, geofence=True, super_resolution=_super_resolution(cfg))
         self._params0 = {n: self.vehicle.params.stored(n) for n in self.vehicle.params.names()}
         self.world = world if world is not None else world_from_source(source)
         self.scorer: Scorer = scorer if scorer is not None else LandingReward(self.world, trial_spec, reward)
@@ -217,10 +217,11 @@ class LandingEnv(gym.Env[Any, NDArray[np.float32]]):
         )
         # the scenario flown (footage_time_s: the footage clock at the start)
         self.scenario: Scenario | None = None
-        self.monitor: TrialMonitor | None = None
+        self.episode: Episode | None = None  # the trial being flown (viva_sitl.evaluation.episode)
         self.trial_seed: int | None = None
         self.trial_index = 0
         self.rate_hz = 1.0 / self.vehicle.dt_s
+        self.schedule = ControlSchedule(self.rate_hz, self.control_hz)  # physics steps per env step
 
         self.action_space = spaces.Box(-1.0, 1.0, shape=(4,), dtype=np.float32)
         state_space = spaces.Box(-np.inf, np.inf, shape=(len(self.state_fields),), dtype=np.float32)
@@ -234,13 +235,11 @@ class LandingEnv(gym.Env[Any, NDArray[np.float32]]):
         )
         self._frames: deque[NDArray[np.uint8]] = deque(maxlen=self.frame_stack)
         self._k = 0  # control steps this episode
-        self._k0 = (
-            0  # control-step phase of the physics schedule (a vector env aligns its copies on one clock)
-        )
-        # set by a vector env: (env, scenario) -> None picks the shared source and sets the footage offset
-        self._binder: Callable[[LandingEnv, Scenario], None] | None = None
+        # set by a vector env (bind_footage): (env, scenario) -> None puts this copy on its shared source, sets
+        # its footage offset and its schedule's phase on the vector env's global clock
+        self.footage_binder: Callable[[LandingEnv, Scenario], None] | None = None
         # set by a vector env before each observation (frame_stack 1, RGB): where to write the view
-        self._view_out: NDArray[np.uint8] | None = None
+        self.view_out: NDArray[np.uint8] | None = None
         self._yaw_cmd_rad = 0.0
         self._done = True
 
@@ -265,10 +264,10 @@ class LandingEnv(gym.Env[Any, NDArray[np.float32]]):
             vn, ve = vn * max_xy / h, ve * max_xy / h
         return (vn, ve, min(vd, max_down))
 
-    def _physics_steps(self, k: int) -> int:
-        """Physics steps in control step k (of a global schedule, so k reference steps = round(k rate / hz))."""
-        r = self.rate_hz / self.control_hz
-        return max(1, round((k + 1) * r) - round(k * r))
+    @property
+    def monitor(self) -> TrialMonitor | None:
+        """The trial's referee (the episode's)."""
+        return None if self.episode is None else self.episode.monitor
 
     def _state_vec(self, s: EavState) -> NDArray[np.float32]:
         v = s.vel_ned_m_s
@@ -313,14 +312,16 @@ class LandingEnv(gym.Env[Any, NDArray[np.float32]]):
         state = self._state_vec(self.vehicle.state)
         if self.observation == "state":
             return state
-        out, self._view_out = self._view_out, None  # one observation only
+        out, self.view_out = self.view_out, None  # one observation only
         self._frames.append(self.view(out) if new_view is None else new_view)
         while len(self._frames) < self.frame_stack:
             self._frames.appendleft(self._frames[0])
         image = self._frames[0] if self.frame_stack == 1 else np.concatenate(list(self._frames), axis=2)
         return {"image": image, "state": state}
 
-    def _check_action(self, action: Any) -> tuple[NDArray[np.float64], bool]:
+    def check_action(self, action: Any) -> tuple[NDArray[np.float64], bool]:
+        """The action as flown (float64, clipped unless out_of_range='raise') and whether it was clipped; ValueError
+        with one line for a malformed one."""
         try:
             a = np.asarray(action, dtype=np.float64)
         except (TypeError, ValueError):
@@ -369,27 +370,23 @@ class LandingEnv(gym.Env[Any, NDArray[np.float32]]):
         return self._start(sc)
 
     def _start(self, sc: Scenario) -> tuple[Any, dict[str, Any]]:
-        """Set the vehicle up as the trials runner does (viva_sitl.evaluation.runner.make_vehicle): the PX4
-        parameters back to the env's, then the scenario's (drawn ones + wind), the physics seed, the start pose."""
+        """Set the vehicle up as every trial is (viva_sitl.evaluation.episode.prepare: the PX4 parameters back to the
+        env's, then the scenario's, the footage clock, the physics seed, the start pose), a vector env's binder
+        putting the copy on its shared footage and clock first."""
         veh = self.vehicle
-        params = veh.params
-        for name, value in self._params0.items():
-            if params.stored(name) != value:
-                params.set(name, value)
-        for name, value in sc.all_params():
-            params.set(name, value)
         veh.sim.footage_offset_s = sc.footage_time_s
-        if self._binder is not None:
-            self._binder(self, sc)  # a vector env: its shared source and the global footage clock
-        if veh.sim.footage_offset_s != sc.footage_time_s:
-            sc = replace(sc, footage_time_s=veh.sim.footage_offset_s)  # the footage clock this copy flies
-        self.scenario = sc
+        self.schedule = ControlSchedule(self.rate_hz, self.control_hz)
+        if self.footage_binder is not None:
+            self.footage_binder(
+                self, sc
+            )  # a vector env: its shared source, the global footage clock and phase
         if isinstance(self.footage, SyntheticField):
             self.footage.forget_windows()  # the views depend on this episode's poses only
+        prepare(veh, sc, baseline_params=self._params0, footage_offset_s=veh.sim.footage_offset_s)
+        self.episode = Episode(veh, sc, self.limits, gcs=True, prepare_vehicle=False)
+        sc = self.scenario = self.episode.scenario  # its footage_time_s: the footage clock this copy flies
+        state = veh.state
         yaw_rad = math.radians(sc.yaw_deg)
-        state = veh.reset(seed=sc.seed, pos_ned_m=sc.start_pos_ned_m, yaw_rad=yaw_rad)
-        self.monitor = TrialMonitor(sc, self.limits, gcs=True)
-        self.monitor.start(veh)
         self._yaw_cmd_rad = yaw_rad
         if self.action_mode != "attitude":
             ap = veh.autopilot
@@ -420,19 +417,20 @@ class LandingEnv(gym.Env[Any, NDArray[np.float32]]):
     def step(self, action: Any) -> tuple[Any, float, bool, bool, dict[str, Any]]:
         if self.scenario is None:
             raise RuntimeError("call reset() before step()")
-        a, clipped = self._check_action(action)
-        self._advance(a)
-        return self._finish(clipped)
+        a, clipped = self.check_action(action)
+        self.transition(a)
+        return self.step_result(clipped)
 
-    def _advance(self, a: NDArray[np.float64]) -> None:
-        """Fly one control period with the checked action (the Vehicle loop: step_command or step), each physics
-        step judged by the trial monitor as in the trials runner; the period stops early when the trial ends. On
-        the ground afterwards: disarm (force, as a pilot's disarm/kill at touchdown), the trial ends "landed"
-        one physics step later."""
+    def transition(self, a: NDArray[np.float64]) -> None:
+        """Fly one control period with a checked action (check_action), each physics step the episode's (the
+        Vehicle loop, judged by the trial's referee as in the trials runner); the period stops early when the
+        trial ends. On the ground afterwards: disarm (force, as a pilot's disarm/kill at touchdown), the trial
+        ends "landed" one physics step later."""
         veh = self.vehicle
-        mon = self.monitor
-        assert mon is not None
-        n = self._physics_steps(self._k0 + self._k)
+        ep = self.episode
+        assert ep is not None
+        mon = ep.monitor
+        n = self.schedule.steps(self._k)
         dt_ctrl = n * veh.dt_s
         if self.action_mode == "attitude":
             self._yaw_cmd_rad = math.remainder(
@@ -445,7 +443,7 @@ class LandingEnv(gym.Env[Any, NDArray[np.float32]]):
                 thrust_n=veh.sim.params.hover_thrust_n * (1.0 + float(a[3])),
             )
             for _ in range(n):
-                monitored_step(veh, mon, cmd)
+                ep.step(cmd)
                 if mon.log.end is not None:
                     break
         else:
@@ -464,20 +462,22 @@ class LandingEnv(gym.Env[Any, NDArray[np.float32]]):
                     )
                     if not out.ok:
                         raise ValueError(f"velocity setpoint refused: {out.reason}")
-                monitored_step(veh, mon, None)
+                ep.step(None)
                 if mon.log.end is not None:
                     break
         if mon.log.end is None and veh.state.landed and veh.autopilot.armed:
             veh.autopilot.disarm(veh.time_s, force=True)
-            monitored_step(veh, mon, None)
+            ep.step(None)
         self._k += 1
 
-    def _finish(self, clipped: bool, new_view: NDArray[np.uint8] | None = None) -> tuple[Any, float, bool, bool, dict[str, Any]]:  # fmt: skip
+    def step_result(self, clipped: bool, new_view: NDArray[np.uint8] | None = None) -> tuple[Any, float, bool, bool, dict[str, Any]]:  # fmt: skip
+        """After `transition`: the observation, the reward, terminated / truncated and the info (the trial's score
+        row once it ended) — `step` is check_action + transition + step_result."""
         veh, mon, sc = self.vehicle, self.monitor, self.scenario
         assert mon is not None and sc is not None
         step = self.scorer.step(veh.state, self.footage_time_s)
         if step.terminated and mon.log.end is None:
-            mon.end(veh, "scorer", "the scorer ended the episode")
+            mon.end(veh, TrialEnd.SCORER, "the scorer ended the episode")
         info = self._info(step.info, clipped)
         reward = float(step.reward)
         end = mon.log.end
@@ -488,16 +488,16 @@ class LandingEnv(gym.Env[Any, NDArray[np.float32]]):
         return (
             self._obs(new_view),
             reward,
-            end is not None and end != "timeout",
-            end == "timeout",
+            end is not None and end != TrialEnd.TIMEOUT,
+            end == TrialEnd.TIMEOUT,
             info,
         )
 
     def trial_row(self) -> dict[str, Any]:
         """The trial's score row so far (final once the episode ended): viva_sitl.evaluation.scoring.score_trial over
         the monitor's log, as `viva-sitl trials run` computes it (pilot "gym", wall_s null)."""
-        assert self.monitor is not None and self.scenario is not None
-        row = score_trial(self.scenario, self.monitor.log, self.world, self.trial_spec)
+        assert self.episode is not None
+        row = self.episode.row(self.world, self.trial_spec)
         row["pilot"] = "gym"
         return row
 
@@ -509,6 +509,15 @@ class LandingEnv(gym.Env[Any, NDArray[np.float32]]):
     def close(self) -> None:
         if self._owns_footage:
             self.vehicle.close()
+
+
+def _super_resolution(config: SimConfig) -> Any:
+    """The config's [perception.sr] render hook (None without one), loaded once per env."""
+    if config.perception.sr.method.value == "none":
+        return None
+    from viva_sitl.perception.sr import super_resolution_from_config
+
+    return super_resolution_from_config(config)
 
 
 def land_assist_limits(

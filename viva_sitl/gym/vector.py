@@ -26,6 +26,7 @@ Autoreset: gymnasium's NEXT_STEP mode (the step after a terminated/truncated one
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 from typing import Any, cast
 
@@ -87,7 +88,7 @@ class SharedFootageVectorEnv(VectorEnv[Any, Any, Any]):
             self._owned = list(sources)
         self.envs = [LandingEnv(src, render_mode=render_mode, world=world, **env_kwargs) for src in sources]
         for env in self.envs:
-            env._binder = self._bind
+            env.footage_binder = self._bind
         e0 = self.envs[0]
         self.single_observation_space = e0.observation_space
         self.single_action_space = e0.action_space
@@ -95,6 +96,7 @@ class SharedFootageVectorEnv(VectorEnv[Any, Any, Any]):
         self.action_space = batch_space(self.single_action_space, self.num_envs)
         self.metadata = {**e0.metadata, "autoreset_mode": AutoresetMode.NEXT_STEP}
         self._global_k = 0  # control steps since the last reset() (the shared schedule and clock)
+        self._schedule = e0.schedule  # the global control schedule (k0 = 0)
         self._global_steps = 0  # physics steps since then
         self._autoreset = np.zeros(self.num_envs, dtype=np.bool_)
         self._direct_views = e0.observation == "image+state" and e0.frame_stack == 1 and not e0.grayscale
@@ -113,14 +115,14 @@ class SharedFootageVectorEnv(VectorEnv[Any, Any, Any]):
         sim = env.vehicle.sim
         if self._per_copy:
             sim.footage_offset_s = base + self._global_steps * env.vehicle.dt_s
-            env._k0 = self._global_k
+            env.schedule = replace(env.schedule, k0=self._global_k)
             return
         src = self._source_for(base)
         if sim.footage is not src:
             sim.footage = src  # the same file, so the same geometry: renderer and region buffers stay valid
             env.footage = src
         sim.footage_offset_s = base + self._global_steps * env.vehicle.dt_s
-        env._k0 = self._global_k
+        env.schedule = replace(env.schedule, k0=self._global_k)
 
     # --- VectorEnv API ----------------------------------------------------------------------------
     def reset(
@@ -155,13 +157,13 @@ class SharedFootageVectorEnv(VectorEnv[Any, Any, Any]):
         for i, env in enumerate(self.envs):
             c = checked[i]
             if c is not None:
-                env._advance(c[0])
+                env.transition(c[0])
         rewards = np.zeros(self.num_envs, dtype=np.float64)
         terminated = np.zeros(self.num_envs, dtype=np.bool_)
         truncated = np.zeros(self.num_envs, dtype=np.bool_)
         infos: dict[str, Any] = {}
         obs: list[Any] = [None] * self.num_envs
-        self._global_steps += self.envs[0]._physics_steps(self._global_k)
+        self._global_steps += self._schedule.steps(self._global_k)
         self._global_k += 1
         order = sorted(range(self.num_envs), key=lambda j: id(self.envs[j].footage))
         self._convert_shared_frames(order, checked)
@@ -173,14 +175,14 @@ class SharedFootageVectorEnv(VectorEnv[Any, Any, Any]):
             if c is None:
                 obs[i], info = env.reset()
             else:
-                obs[i], r, term, trunc, info = env._finish(c[1])
+                obs[i], r, term, trunc, info = env.step_result(c[1])
                 rewards[i], terminated[i], truncated[i] = r, term, trunc
             infos = self._add_info(infos, info, i)
         self._autoreset = terminated | truncated
         return self._batch(obs, out), rewards, terminated, truncated, infos
 
     def _check_actions(self, a: NDArray[np.float64]) -> list[tuple[NDArray[np.float64], bool] | None]:
-        """LandingEnv._check_action of each copy's row (None for a copy that autoresets this step), tested for the
+        """LandingEnv.check_action of each copy's row (None for a copy that autoresets this step), tested for the
         whole batch at once: two numpy reductions per vector step instead of two per copy. A row that fails (not
         finite, or out of range with out_of_range="raise") goes through the copy's own check for its error."""
         finite = cast(list[bool], np.isfinite(a).all(axis=1).tolist())
@@ -190,7 +192,7 @@ class SharedFootageVectorEnv(VectorEnv[Any, Any, Any]):
             if self._autoreset[i]:
                 checked.append(None)
             elif not finite[i] or (over[i] and env.out_of_range == "raise"):
-                checked.append(env._check_action(a[i]))  # raises ValueError with the single env's message
+                checked.append(env.check_action(a[i]))  # raises ValueError with the single env's message
             else:
                 checked.append((np.clip(a[i], -1.0, 1.0), True) if over[i] else (a[i], False))
         return checked
@@ -215,7 +217,7 @@ class SharedFootageVectorEnv(VectorEnv[Any, Any, Any]):
         """A new batched observation to fill (each step's is the caller's to keep). With one RGB view per copy
         (frame_stack 1) the copies convert their views straight into its image slots (`LandingEnv.view(out=)`)."""
         for env in self.envs:
-            env._view_out = None  # none left over from a step that raised
+            env.view_out = None  # none left over from a step that raised
         if not self._direct_views:
             return None
         e0 = self.envs[0]
@@ -225,7 +227,7 @@ class SharedFootageVectorEnv(VectorEnv[Any, Any, Any]):
 
     def _view_into(self, out: Any, i: int) -> None:
         if out is not None:
-            self.envs[i]._view_out = out["image"][i]
+            self.envs[i].view_out = out["image"][i]
 
     def _batch(self, obs: list[Any], out: Any = None) -> Any:
         if out is None:

@@ -24,7 +24,7 @@ import enum
 import math
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 import cv2
 import numpy as np
@@ -39,6 +39,9 @@ from viva_sitl.camera.projection import (
 )
 from viva_sitl.camera.renderer import Renderer, RenderResult
 from viva_sitl.perception.errors import PerceptionError, require_torch
+
+if TYPE_CHECKING:
+    from viva_sitl.config import SimConfig
 
 U8 = NDArray[np.uint8]
 F64 = NDArray[np.float64]
@@ -422,3 +425,18 @@ def magnified_render_from_config(config: SRConfig) -> MagnifiedRender | None:
     """What `Simulator.super_resolution` should hold for a config (None for method none)."""
     up = load_upscaler(config)
     return None if up is None else MagnifiedRender(up, config.min_magnification)
+
+
+def super_resolution_from_config(config: SimConfig) -> MagnifiedRender | None:
+    """A run's `[perception.sr]` -> what Vehicle(super_resolution=) / Simulator.super_resolution holds (None: method
+    none). The model loads here, once per vehicle, so a bad model path or a missing extra is one ConfigError at
+    start-up, not a failure at the first low frame (the caller builds it: the core never imports perception)."""
+    from viva_sitl.config import ConfigError
+
+    sr = config.perception.sr
+    if sr.method is SRMethod.NONE:
+        return None
+    try:
+        return magnified_render_from_config(sr)
+    except PerceptionError as exc:
+        raise ConfigError(f"[perception.sr]: {exc}") from None
