@@ -47,6 +47,7 @@ from viva_sitl.video import FrameScheduler, VideoPipeline
 from viva_sitl.world import world_from_source
 
 log = logging.getLogger("viva_sitl.app")
+PILOT_WAIT_MAX_S = 15.0  # wall seconds a trial's clock waits for the pilot's first MAVLink message
 
 
 def _world_layers_of(cfg: SimConfig) -> list[LayerProvider]:
@@ -114,6 +115,7 @@ class SitlApp:
         self._trajectory_task: asyncio.Task[None] | None = None
         # --- a landing trial (`run --scenario FILE`): viva_sitl.evaluation.session ---------------------
         self.trial: ScenarioSession | None = None
+        self.pilot_wait_wall_s: float | None = None  # a trial: wall seconds its clock waited for the pilot
         if scenario is not None:
             self.trial = ScenarioSession(scenario[0], scenario[1], self.vehicle, self.run_dir)
             self.endpoint.add_event_listener(self.trial.on_statustext)
@@ -196,6 +198,28 @@ class SitlApp:
         if self.trial is not None and self.trial.after_step():
             self.stop()  # the trial is over (landed, crash, left the footage, timeout)
 
+    async def _physics(self) -> None:
+        """The paced physics loop; a trial (`--scenario`) first holds the clock at 0 until the pilot connects."""
+        if self.trial is not None:
+            await self._wait_for_pilot()
+        await run_paced(self.pacer, self._step_once, self._after_batch)
+
+    async def _wait_for_pilot(self) -> None:
+        """Simulated time stands still until the first MAVLink message from the pilot arrives (a pilot that starts
+        slowly, e.g. a 3 s import, misses nothing of its scenario: "land now" at land_at_s is land_at_s after it
+        connected), or PILOT_WAIT_MAX_S wall seconds passed (a listen-only pilot; then "land now" is repeated until
+        it acts). Heartbeats go out meanwhile (the endpoint's wall-clock loop), so MAVSDK and pymavlink discover
+        the vehicle."""
+        t0 = time.monotonic()
+        while self.endpoint.rx_messages == 0 and time.monotonic() - t0 < PILOT_WAIT_MAX_S:
+            await asyncio.sleep(0.005)
+        self.pilot_wait_wall_s = round(time.monotonic() - t0, 3)
+        if self.endpoint.rx_messages == 0:
+            log.warning(
+                "no MAVLink message from the pilot after %g s: the trial's clock starts anyway",
+                PILOT_WAIT_MAX_S,
+            )
+
     def _sample_trajectory(self) -> None:
         s = self.sim.state
         ap = self.autopilot
@@ -241,9 +265,7 @@ class SitlApp:
         if self.video is not None and self.scheduler is not None:
             self.video.start()
             self.scheduler.start()
-        self._physics_task = asyncio.create_task(
-            run_paced(self.pacer, self._step_once, self._after_batch), name="viva-physics"
-        )
+        self._physics_task = asyncio.create_task(self._physics(), name="viva-physics")
         if ready:
             self._print_ready()
         try:
@@ -303,6 +325,8 @@ class SitlApp:
             "sim_time_s": round(self.time_s, 3),
             "skipped_physics_steps": self.pacer.skipped_steps,
         }
+        if self.pilot_wait_wall_s is not None:
+            stats["pilot_wait_wall_s"] = self.pilot_wait_wall_s
         if self.scheduler is not None:
             render = self.scheduler.stats()
             stats["render"] = render

@@ -81,6 +81,7 @@ class Autopilot:
         self.inside = inside
         self.ctx = FlightContext(params, eav, inside)
         self.failures = Failures()  # injected failures (inject_failure): read where each one acts
+        self.commands = 0  # flight commands received (arm ... mission_start): a pilot's actions, counted
         self.ctx.sync_sim_params_from(eav)
         self.tasks = FlightTasks(self.ctx)
         self.land_detector = LandDetector(params)
@@ -144,40 +145,51 @@ class Autopilot:
         return self.commander.prearm_check(now_s)
 
     def arm(self, now_s: float, force: bool = False) -> Outcome:
+        self.commands += 1
         return self.commander.arm(now_s, force)
 
     def disarm(self, now_s: float, force: bool = False) -> Outcome:
+        self.commands += 1
         return self.commander.disarm(now_s, force)
 
     def kill(self, now_s: float) -> Outcome:
+        self.commands += 1
         return self.commander.kill(now_s)
 
     def takeoff(self, now_s: float, altitude_m: float | None = None) -> Outcome:  # None -> MIS_TAKEOFF_ALT
+        self.commands += 1
         return self.commander.takeoff(now_s, altitude_m)
 
     def land(self, now_s: float) -> Outcome:
+        self.commands += 1
         return self.commander.land(now_s)
 
     def return_to_launch(self, now_s: float) -> Outcome:
+        self.commands += 1
         return self.commander.return_to_launch(now_s)
 
     def set_mode(self, now_s: float, mode: FlightMode) -> Outcome:
+        self.commands += 1
         return self.commander.set_mode(now_s, mode)
 
     def reposition(self, now_s: float, north_m: float, east_m: float, down_m: float, yaw_rad: float | None,
                    speed_m_s: float | None = None, change_mode: bool = True) -> Outcome:  # fmt: skip
+        self.commands += 1
         return self.commander.reposition(now_s, north_m, east_m, down_m, yaw_rad, speed_m_s, change_mode)
 
     def orbit(self, now_s: float, radius_m: float, velocity_m_s: float, yaw_behaviour: float,
               center_ne_m: tuple[float, float] | None, center_down_m: float | None) -> Outcome:  # fmt: skip
         """MAV_CMD_DO_ORBIT: NaN radius/velocity/yaw behaviour keep the current orbit's (or PX4's defaults)."""
+        self.commands += 1
         return self.commander.orbit(now_s, radius_m, velocity_m_s, yaw_behaviour, center_ne_m, center_down_m)
 
     def change_speed(self, now_s: float, speed_m_s: float) -> Outcome:
         """DO_CHANGE_SPEED: > 0 sets the auto cruise speed (clamped to MPC_XY_VEL_MAX); -1 no change; -2 default."""
+        self.commands += 1
         return self.commander.change_speed(now_s, speed_m_s)
 
     def mission_start(self, now_s: float, first_seq: int = 0) -> Outcome:
+        self.commands += 1
         return self.commander.mission_start(now_s, first_seq)
 
     def set_home(self, now_s: float, home_ned_m: tuple[float, float, float]) -> Outcome:

@@ -20,9 +20,13 @@ environments (gym/env.py, gym/vector.py). Nothing here reads a clock or does I/O
   seed and the start pose (Vehicle.reset: a new autopilot, armed in Hold for an air start).
 - Events: the TrialMonitor applies the scenario's schedule through the autopilot's public API
   (`Autopilot.inject_failure`, the path MAV_CMD_INJECT_FAILURE takes); "land now" and injected failures are
-  announced as the vehicle's STATUSTEXT (`Autopilot.announce`), "land now" repeated every LAND_NOW_REPEAT_S until
-  the trial ends, so a pilot that starts listening late still hears it. The episode's own announcements are not
-  recorded a second time as autopilot events.
+  announced as the vehicle's STATUSTEXT (`Autopilot.announce`). "Land now" is repeated every LAND_NOW_REPEAT_S
+  (0.5 s) until the pilot reacts, so a pilot that starts listening late still hears it within half a second: the
+  pilot's reaction is its first flight command after "land now" (arm, disarm, takeoff, land, RTL, mode, reposition,
+  orbit, speed, mission start: Autopilot.commands; setpoint streams do not count, they flow before and after) or a
+  change of flight mode (a failsafe's, too: the vehicle is then landing anyway). The first command is recorded as
+  the event "reaction" and TrialLog.reaction_t_s (end.json "reaction_t_s"). The episode's own announcements are
+  not recorded a second time as autopilot events.
 - Schedule: control step k of a pilot acting at control_hz over physics at rate_hz lasts
   round((k + 1) r) - round(k r) physics steps, r = rate_hz / control_hz: exactly control_hz on average (30 Hz over
   250 Hz physics alternates 8 and 9 steps), and the same as a fixed step count where r is a whole number.
@@ -45,7 +49,7 @@ from viva_sitl.evaluation.spec import Scenario, TrialSpec
 from viva_sitl.vehicle import Vehicle
 from viva_sitl.world import WorldModel
 
-LAND_NOW_REPEAT_S = 5.0  # sim seconds between repeats of the "land now" STATUSTEXT until the trial ends
+LAND_NOW_REPEAT_S = 0.5  # sim seconds between repeats of the "land now" STATUSTEXT until the pilot reacts
 
 
 def limits_of(spec: TrialSpec) -> Limits:
@@ -137,6 +141,7 @@ class Episode:
         self.monitor.start(vehicle)
         self._announced = 0  # monitor events already announced
         self._repeat_s = math.inf
+        self._awaiting: tuple[int, str] | None = None  # since "land now": (autopilot commands, mode) then
 
     # --- state ----------------------------------------------------------------------------------------
     @property
@@ -187,9 +192,23 @@ class Episode:
                 ap.announce(Severity(e["severity"]), e["text"])
             if e["kind"] == "land_now":
                 self._repeat_s = e["t_s"] + LAND_NOW_REPEAT_S
-        if m.log.end is None:
+                self._awaiting = (ap.commands, ap.mode.name)
+        if self._awaiting is not None and m.log.end is None:
             t = m.t_of(self.vehicle.state)
-            if t >= self._repeat_s:  # a pilot that connected late still hears it
+            commands, mode = self._awaiting
+            if ap.commands != commands:
+                self._awaiting = None
+                m.log.reaction_t_s = round(t, 6)
+                m.event(
+                    t,
+                    "reaction",
+                    f"the pilot's first command after land now: {t - (m.log.land_now_t_s or 0.0):.3f} s later",
+                )
+            elif ap.mode.name != mode:
+                self._awaiting = (
+                    None  # landing already (the pilot's mode change is a command; a failsafe's is not)
+                )
+            elif t >= self._repeat_s:  # not heard yet, or not acted on: say it again
                 self._repeat_s = t + LAND_NOW_REPEAT_S
                 ap.announce(Severity.ALERT, LAND_NOW_TEXT)
 

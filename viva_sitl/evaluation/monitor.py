@@ -93,6 +93,9 @@ class TrialLog:
     outside_s: float = 0.0
     path_m: float = 0.0
     land_now_t_s: float | None = None
+    reaction_t_s: float | None = (
+        None  # the pilot's first action after "land now" (external pilots; see episode.py)
+    )
 
     def write(self, trial_dir: Path) -> None:
         trial_dir.mkdir(parents=True, exist_ok=True)
@@ -112,6 +115,7 @@ class TrialLog:
             "touchdown": None if td is None else {k: round(v, 6) for k, v in td.__dict__.items()},
             "energy_wh": round(self.energy_wh, 6), "outside_s": round(self.outside_s, 6),
             "path_m": round(self.path_m, 6), "land_now_t_s": self.land_now_t_s,
+            **({} if self.reaction_t_s is None else {"reaction_t_s": self.reaction_t_s}),
         }  # fmt: skip
 
     @classmethod
@@ -132,6 +136,7 @@ class TrialLog:
         log.touchdown = None if s["touchdown"] is None else Touchdown(**s["touchdown"])
         log.energy_wh, log.outside_s, log.path_m = s["energy_wh"], s["outside_s"], s["path_m"]
         log.land_now_t_s = s["land_now_t_s"]
+        log.reaction_t_s = s.get("reaction_t_s")
         return log
 
 

@@ -476,6 +476,17 @@ class MavlinkEndpoint:
         return self._links[LinkKind.GCS].local_address
 
     @property
+    def rx_messages(self) -> int:
+        """MAVLink messages received from any peer so far (a pilot that has said anything has connected)."""
+        return self._stats.rx_messages
+
+    @property
+    def pilot_actions(self) -> int:
+        """Commands, setpoints and manual inputs received so far: a counter that moves when a pilot acts."""
+        st = self._stats
+        return st.commands + st.setpoints_handled + st.setpoints_refused + st.manual_inputs
+
+    @property
     def stats(self) -> dict[str, Any]:
         out: dict[str, Any] = asdict(self._stats)
         out["param_sets_accepted"] = self.params.sets_accepted
