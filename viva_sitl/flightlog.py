@@ -203,8 +203,11 @@ class FlightLog:
         self.path = self.writer.path
         self.boot_wall_s = time.time() - max(0.0, start_time_s)
         self._last_us = -1
-        self._last_vel: tuple[float, float, float] | None = None
-        self._last_vel_s = math.nan
+        self._last_vel: tuple[float, float, float] = (0.0, 0.0, 0.0)
+        self._last_vel_s = math.inf  # no sample yet: the first acceleration is 0
+        self._next_any_s = -math.inf  # the earliest due time of any topic
+        self._last_key: tuple[Any, ...] | None = None
+        self._bat_warn = 0
         self._last_status: tuple[Any, ...] | None = None
         self._last_flags: tuple[Any, ...] | None = None
         self._armed_since_us = 0
@@ -233,31 +236,39 @@ class FlightLog:
             self.skipped_steps += 1
             return
         self._last_us = us
+        armed = bool(autopilot.armed)
+        mode = autopilot.mode
+        flags = autopilot.commander.failsafe_flags  # a frozen dataclass, replaced when a flag changes
+        offboard_lost = mode == FlightMode.OFFBOARD and not autopilot.tasks.offboard.fresh(now_s)
+        key = (armed, mode, bool(state.landed), id(flags), offboard_lost)
+        if now_s < self._next_any_s and key == self._last_key:
+            return  # the common step: nothing due, nothing changed (a few attribute reads)
+        self._last_key = key
         w = self.writer
-        pos = _f3(state.pos_ned_m)
-        vel = _f3(state.vel_ned_m_s)
-        if self._last_vel is not None and now_s > self._last_vel_s:
-            dt = now_s - self._last_vel_s
-            acc = tuple((v - p) / dt for v, p in zip(vel, self._last_vel, strict=True))
-        else:
-            acc = (0.0, 0.0, 0.0)
-        self._last_vel, self._last_vel_s = vel, now_s
-        roll, pitch, yaw = _f3(state.att_rpy_rad)
+        due = self._due
         ground_z = float(autopilot.eav.ground_z_ned_m)
-        if self._due("vehicle_local_position", now_s):
+        if due("vehicle_local_position", now_s):
+            pos = _f3(state.pos_ned_m)
+            vel = _f3(state.vel_ned_m_s)
+            dt = now_s - self._last_vel_s
+            acc = (
+                tuple((v - p) / dt for v, p in zip(vel, self._last_vel, strict=True))
+                if dt > 0
+                else (0.0,) * 3
+            )
+            self._last_vel, self._last_vel_s = vel, now_s
             w.log(LOCAL_POSITION, us, (
-                us, True, True, True, True, *pos, *vel, *acc, yaw, True, True,
+                us, True, True, True, True, *pos, *vel, *acc, float(state.att_rpy_rad[2]), True, True,
                 self.geo.lat_deg, self.geo.lon_deg, self.geo.alt_amsl_m,
                 max(0.0, ground_z - pos[2]), True,
             ))  # fmt: skip
-        if self._due("vehicle_global_position", now_s):
-            lat, lon, alt = self.geo.ned_to_global(*pos)
+        if due("vehicle_global_position", now_s):
+            lat, lon, alt = self.geo.ned_to_global(*_f3(state.pos_ned_m))
             terrain = self.geo.alt_amsl_m - ground_z
             w.log(GLOBAL_POSITION, us, (us, lat, lon, alt, alt, 0.5, 0.8, terrain, True, False))
-        if self._due("vehicle_attitude", now_s):
-            w.log(ATTITUDE, us, (us, quat_from_euler(roll, pitch, yaw), (0.0, 0.0, 0.0, 0.0), 0))
-        armed = bool(autopilot.armed)
-        mode = autopilot.mode
+        if due("vehicle_attitude", now_s):
+            q = quat_from_euler(*_f3(state.att_rpy_rad))
+            w.log(ATTITUDE, us, (us, q, (0.0, 0.0, 0.0, 0.0), 0))
         if armed and not self._was_armed:
             self._armed_since_us = us
         if not armed:
@@ -269,9 +280,14 @@ class FlightLog:
         self._was_armed, self._was_airborne = armed, airborne
         if mode != self._last_mode:
             self._last_mode, self._nav_since_us = mode, us
-        flags = autopilot.commander.failsafe_flags
-        bat_warn = battery_level(float(autopilot.battery_remaining), autopilot.params)
-        offboard_lost = mode == FlightMode.OFFBOARD and not autopilot.tasks.offboard.fresh(now_s)
+        battery_due = due("battery_status", now_s)
+        if battery_due:
+            self._bat_warn = battery_level(float(autopilot.battery_remaining), autopilot.params)
+            w.log(BATTERY, us, (
+                True, float(autopilot.battery_voltage_v), float(autopilot.battery_current_a),
+                float(autopilot.battery_remaining), self._bat_warn, 0,
+            ))  # fmt: skip
+        bat_warn = self._bat_warn
         flag_values = (
             bool(flags.rc_lost_handled), bool(flags.dll_lost), offboard_lost,
             bool(flags.fence_breached or flags.gf_outside), bat_warn, False, False, False,
@@ -282,28 +298,28 @@ class FlightLog:
             ARMING_STATE_ARMED if armed else ARMING_STATE_DISARMED, NAV_STATE.get(mode, 4),
             VEHICLE_TYPE_ROTARY_WING, MAV_TYPE_QUADROTOR, self.system_id & 0xFF, 1, failsafe, True, False,
         )  # fmt: skip
-        if self._due("vehicle_status", now_s) or status != self._last_status:
+        if due("vehicle_status", now_s) or status != self._last_status:
             self._last_status = status
             w.log(STATUS, us, status)
-        if self._due("failsafe_flags", now_s) or flag_values != self._last_flags:
+        if due("failsafe_flags", now_s) or flag_values != self._last_flags:
             self._last_flags = flag_values
             w.log(FAILSAFE_FLAGS, us, flag_values)
-        if self._due("battery_status", now_s):
-            w.log(BATTERY, us, (
-                True, float(autopilot.battery_voltage_v), float(autopilot.battery_current_a),
-                float(autopilot.battery_remaining), bat_warn, 0,
-            ))  # fmt: skip
-        if self._due("trajectory_setpoint", now_s):
+        if due("trajectory_setpoint", now_s):
             ctx = autopilot.ctx
             vel_sp = _f3(ctx.ctrl.last_vel_sp_ned_m_s) if armed else _NAN3
             w.log(TRAJECTORY_SETPOINT, us, (_NAN3, vel_sp, _NAN3, _NAN3, float(ctx.yaw_sp), math.nan))
-        if attitude_setpoint is not None and self._due("vehicle_attitude_setpoint", now_s):
+        if attitude_setpoint is not None and due("vehicle_attitude_setpoint", now_s):
             cmd = attitude_setpoint
             max_thrust = float(autopilot.eav_params().max_thrust_n)
             thrust = -float(cmd.thrust_n) / max_thrust if max_thrust > 0 else math.nan
             w.log(ATTITUDE_SETPOINT, us, (
                 math.nan, quat_from_euler(cmd.roll_rad, cmd.pitch_rad, cmd.yaw_rad), (0.0, 0.0, thrust),
             ))  # fmt: skip
+        self._next_any_s = min(
+            t
+            for name, t in self._next_s.items()
+            if attitude_setpoint is not None or name != "vehicle_attitude_setpoint"
+        )
 
     def camera_capture(
         self,

@@ -19,14 +19,12 @@ a reader of a log still being written (MAVLink LOG_REQUEST_DATA of the current l
 
 from __future__ import annotations
 
-import contextlib
 import logging
 import math
 import os
-import queue
 import struct
 import threading
-import time
+from collections import deque
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -257,13 +255,15 @@ class ULogFile:
 
 
 _TEXT = object()  # queue marker of a logged string
-_STOP = object()
+WRITER_PERIOD_S = 0.02  # the writer thread drains the queue this often (wall time)
 
 
 class ULogWriter:
-    """A ULogFile behind a bounded queue and a writer thread: `log()` and `text()` cost a tuple and a put_nowait on
-    the caller's thread (the physics loop), the packing and the file I/O happen on the writer thread. A full queue
-    drops the sample (counted; a dropout message marks the gap). `close()` drains the queue and closes the file."""
+    """A ULogFile behind a bounded queue and a writer thread: `log()` and `text()` cost a length test and a
+    deque append on the caller's thread (the physics loop: no lock, no wake-up), the packing and the file I/O happen
+    on the writer thread, which drains the queue every WRITER_PERIOD_S. A full queue drops the sample (counted; a
+    dropout message marks the gap, as PX4's logger does when its buffer overflows). `close()` writes what is queued
+    and closes the file."""
 
     def __init__(
         self,
@@ -277,35 +277,31 @@ class ULogWriter:
     ) -> None:
         self.file = ULogFile(path, topics, info=info, params=params, start_us=start_us)
         self.path = self.file.path
-        self._queue: queue.Queue[Any] = queue.Queue(maxsize=max_queue)
+        self._queue: deque[tuple[Any, int, Any]] = deque()  # append/popleft are atomic under the GIL
+        self.max_queue = int(max_queue)
         self.dropped = 0
         self.write_errors = 0
         self._dropped_reported = 0
-        self._last_put_us = 0
         self._closed = False
+        self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="viva-ulog", daemon=True)
         self._thread.start()
 
     # --- producer side (any thread, never blocks) -------------------------------------------
     def log(self, topic: Topic, timestamp_us: int, values: Sequence[Any]) -> bool:
-        if self._closed:
+        q = self._queue
+        if self._closed or len(q) >= self.max_queue:
+            self.dropped += not self._closed
             return False
-        try:
-            self._queue.put_nowait((topic, int(timestamp_us), values))
-        except queue.Full:
-            self.dropped += 1
-            return False
-        self._last_put_us = int(timestamp_us)
+        q.append((topic, timestamp_us, values))
         return True
 
     def text(self, level: int, timestamp_us: int, text: str) -> bool:
-        if self._closed:
+        q = self._queue
+        if self._closed or len(q) >= self.max_queue:
+            self.dropped += not self._closed
             return False
-        try:
-            self._queue.put_nowait((_TEXT, int(timestamp_us), (int(level), text)))
-        except queue.Full:
-            self.dropped += 1
-            return False
+        q.append((_TEXT, int(timestamp_us), (int(level), text)))
         return True
 
     @property
@@ -325,62 +321,52 @@ class ULogWriter:
         if self._closed:
             return
         self._closed = True
-        deadline = time.monotonic() + timeout_s
-        while True:
-            try:
-                self._queue.put(_STOP, timeout=0.1)
-                break
-            except queue.Full:
-                if time.monotonic() > deadline or not self._thread.is_alive():
-                    break
-        self._thread.join(max(0.0, deadline - time.monotonic()))
+        self._stop.set()
+        self._thread.join(timeout_s)
         self.file.close()
 
     # --- writer thread ------------------------------------------------------------------------
-    def _run(self) -> None:
+    def _drain(self) -> bool:
+        """Write what is queued now; False when the file cannot be written any more."""
+        q = self._queue
         f = self.file
-        stop = False
-        while not stop:
-            item = self._queue.get()
-            batch = [item]
-            with contextlib.suppress(queue.Empty):
-                while len(batch) < 2000:
-                    batch.append(self._queue.get_nowait())
-            parts: list[bytes] = []
-            n = 0
-            last_us = f.last_timestamp_us
-            if self.dropped != self._dropped_reported:
-                self._dropped_reported = self.dropped
-                parts.append(dropout_msg(1))  # samples lost here: mark the gap as PX4's logger does
-            for it in batch:
-                if it is _STOP:
-                    stop = True
-                    break
-                topic, ts, values = it
-                try:
-                    if topic is _TEXT:
-                        parts.append(logging_msg(values[0], ts, values[1]))
-                    else:
-                        parts.append(f.encode(topic, ts, values))
-                        n += 1
-                        last_us = max(last_us, ts)
-                except (ValueError, struct.error, KeyError) as exc:  # a bad sample: skipped, counted
-                    self.write_errors += 1
-                    log.debug("ulog: sample of %s skipped: %s", getattr(topic, "name", "text"), exc)
-            if parts:
-                try:
-                    f.write_raw(b"".join(parts), last_us, n)
-                except (
-                    OSError,
-                    ValueError,
-                ) as exc:  # disk full, file closed: stop writing, keep the run going
-                    self.write_errors += 1
-                    log.warning("ulog: cannot write %s: %s", f.path, exc)
-                    stop = True
-        # drain anything left so producers never block on a dead writer
-        with contextlib.suppress(queue.Empty):
-            while True:
-                self._queue.get_nowait()
+        parts: list[bytes] = []
+        n = 0
+        last_us = f.last_timestamp_us
+        if self.dropped != self._dropped_reported:
+            self._dropped_reported = self.dropped
+            parts.append(dropout_msg(1))  # samples lost here: mark the gap
+        for _ in range(len(q)):
+            topic, ts, values = q.popleft()
+            try:
+                if topic is _TEXT:
+                    parts.append(logging_msg(values[0], ts, values[1]))
+                else:
+                    parts.append(f.encode(topic, ts, values))
+                    n += 1
+                    last_us = max(last_us, int(ts))
+            except (ValueError, TypeError, struct.error, KeyError) as exc:  # a bad sample: skipped, counted
+                self.write_errors += 1
+                log.debug("ulog: sample of %s skipped: %s", getattr(topic, "name", "text"), exc)
+        if not parts:
+            return True
+        try:
+            f.write_raw(b"".join(parts), last_us, n)
+        except (OSError, ValueError) as exc:  # disk full, file closed: stop writing, keep the run going
+            self.write_errors += 1
+            log.warning("ulog: cannot write %s: %s", f.path, exc)
+            return False
+        return True
+
+    def _run(self) -> None:
+        while True:
+            stopping = self._stop.wait(WRITER_PERIOD_S)
+            if not self._drain():
+                break
+            if stopping:
+                self._drain()  # anything appended while the last drain ran
+                break
+        self._queue.clear()
 
 
 __all__ = ["Topic", "ULogFile", "ULogWriter"]
