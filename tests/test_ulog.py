@@ -89,6 +89,9 @@ def test_flight_log_of_a_takeoff_matches_the_simulated_states(tmp_path: Path) ->
                 float(s.pos_ned_m[2]),
             )
         flog.step(s, v.autopilot)  # the same time again: skipped, one file keeps one clock
+        lat, lon, alt = v.geo.ned_to_global(*(float(c) for c in s.pos_ned_m))
+        flog.camera_capture(3, s.time_s, lat, lon, alt, 4.0, (1.0, 0.0, 0.0, 0.0), True)
+        flog.text(4, s.time_s, "Low battery")
         assert flog.skipped_steps == 1
         flog.close()
     u = pyulog.ULog(str(tmp_path / "log.ulg"))
@@ -118,3 +121,7 @@ def test_flight_log_of_a_takeoff_matches_the_simulated_states(tmp_path: Path) ->
     sp = u.get_dataset("trajectory_setpoint").data
     assert math.isnan(sp["position[0]"][-1]) and np.isfinite(sp["velocity[2]"][-1])
     assert u.initial_parameters["MIS_TAKEOFF_ALT"] == pytest.approx(v.params.get("MIS_TAKEOFF_ALT"))
+    cap = u.get_dataset("camera_capture").data
+    assert list(cap["seq"]) == [3] and list(cap["result"]) == [1] and cap["lat"][0] == pytest.approx(lat)
+    assert cap["timestamp"][0] >= lp["timestamp"][-1]  # never before the last logged step
+    assert [m.message for m in u.logged_messages] == ["Low battery"]
