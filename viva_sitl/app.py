@@ -29,10 +29,12 @@ from viva_sitl.dashboard.layers import world_layers
 from viva_sitl.dashboard.overview import LayerProvider
 from viva_sitl.dashboard.server import Dashboard
 from viva_sitl.dynamics import EavState, floats3
+from viva_sitl.dynamics.rotation import quat_from_euler
 from viva_sitl.evaluation.episode import scenario_config
 from viva_sitl.evaluation.monitor import Limits
 from viva_sitl.evaluation.session import ScenarioSession, read_scenario_file
 from viva_sitl.evaluation.spec import Scenario
+from viva_sitl.flightlog import LOG_FILE, FlightLog
 from viva_sitl.footage import open_footage
 from viva_sitl.footage.loader import resolve_metadata
 from viva_sitl.frame import RenderedFrame
@@ -121,6 +123,7 @@ class SitlApp:
             self.endpoint.add_event_listener(self.trial.on_statustext)
         self._stopping = asyncio.Event()
         self._physics_task: asyncio.Task[None] | None = None
+        self.flightlog: FlightLog | None = None  # the run's PX4 ULog (flightlog.py), opened by run()
 
     # --- VehicleLink ----------------------------------------------------------------------
     @property
@@ -183,6 +186,8 @@ class SitlApp:
         out.mkdir(parents=True, exist_ok=True)
         path = out / f"img_{seq:05d}.png"
         ok = bool(cv2.imwrite(str(path), frame.image_bgr))
+        if self.flightlog is not None:
+            self._log_capture(seq, frame, ok)
         if ok:
             path.with_suffix(".json").write_text(json.dumps(frame.meta.to_dict(), indent=1))
         return CaptureResult(ok=ok, path=str(path.resolve()), meta=frame.meta)
@@ -192,6 +197,8 @@ class SitlApp:
         if self.dashboard is not None:  # its sticks reach the autopilot at every step (an RC receiver)
             self.dashboard.before_step(self.vehicle.time_s)
         self.vehicle.step(1)
+        if self.flightlog is not None:
+            self.flightlog.step(self.sim.state, self.autopilot)
         self.endpoint.on_sim_step()  # telemetry, heartbeats and MAVLink timers run on sim time
         if self.trajectory.due(self.sim.state.time_s):
             self._sample_trajectory()
@@ -253,6 +260,7 @@ class SitlApp:
             write_run_info(self.run_dir, self.config, self.sim.footage.metadata.name, self.trajectory.rate_hz)
         except OSError as exc:  # the run goes on; the trajectory counts its write errors (stop line)
             log.warning("cannot write %s: %s (no replay of this run)", self.run_dir, exc.strerror or exc)
+        self._open_flightlog()
         self._sample_trajectory()  # the initial state
         self._trajectory_task = asyncio.create_task(self.trajectory.run(), name="viva-trajectory")
         # dashboard: start (first: a busy --dashboard-port fails before anything runs)
@@ -283,6 +291,8 @@ class SitlApp:
                 await self._trajectory_task
             self._sample_trajectory()  # the final state
             await asyncio.get_running_loop().run_in_executor(None, self.trajectory.close)
+            if self.flightlog is not None:
+                await asyncio.get_running_loop().run_in_executor(None, self.flightlog.close)
             if self.dashboard is not None:  # dashboard: stop
                 await self.dashboard.stop()
             await self.endpoint.stop()
@@ -297,6 +307,28 @@ class SitlApp:
 
     def _world_layers(self) -> list[LayerProvider]:
         return _world_layers_of(self.config)
+
+    # --- the PX4 ULog of the run (viva_sitl/flightlog.py), served over the MAVLink log protocol -------------------
+    def _open_flightlog(self) -> None:
+        try:
+            flog = FlightLog(self.run_dir / LOG_FILE, self.geo, self.params, start_time_s=self.time_s,
+                             system_id=self.config.mavlink.system_id)  # fmt: skip
+        except OSError as exc:  # the run goes on without a ULog
+            log.warning(
+                "cannot write %s: %s (no ULog of this run)", self.run_dir / LOG_FILE, exc.strerror or exc
+            )
+            return
+        self.flightlog = flog
+        self.endpoint.logs.set_source(lambda: [(flog.path, not flog.writer.closed)])
+        self.endpoint.add_event_listener(lambda text, severity: flog.text(severity, self.time_s, text))
+
+    def _log_capture(self, seq: int, frame: RenderedFrame, ok: bool) -> None:
+        assert self.flightlog is not None
+        s = self.sim.state
+        lat, lon, alt = self.geo.ned_to_global(*floats3(s.pos_ned_m))
+        ground = float(self.autopilot.eav.ground_z_ned_m) - float(s.pos_ned_m[2])
+        q = quat_from_euler(*floats3(s.att_rpy_rad))
+        self.flightlog.camera_capture(seq, float(s.time_s), lat, lon, alt, ground, q, ok)
 
     def _print_ready(self) -> None:
         m = self.config.mavlink
@@ -342,6 +374,8 @@ class SitlApp:
             stats["dashboard"] = self.dashboard.stats()
         stats["trajectory"] = {"path": str(self.trajectory.path.resolve()), "rows": self.trajectory.rows_written,
                                "write_errors": self.trajectory.write_errors}  # fmt: skip
+        if self.flightlog is not None:
+            stats["ulog"] = self.flightlog.stats
         if self.endpoint.tlog_path:
             stats["tlog"] = str(Path(self.endpoint.tlog_path).resolve())
         print(f"viva-sitl stopped: {json.dumps(stats, default=str)}", file=sys.stderr, flush=True)

@@ -8,7 +8,8 @@
 
 Modules, one per concern: codec (datagram parser, encoders), endpoint (links, peers, dispatch, tasks), telemetry
 (messages + per-link rates), commands (COMMAND_LONG/INT -> Autopilot), params, mission, offboard (setpoint decoding),
-camera (compid 100; its CameraLink protocol and data types in camera_link), selftest (a minimal vehicle for
+camera (compid 100; its CameraLink protocol and data types in camera_link), logs (the MAVLink log protocol over
+the run's ULog files), calibration (MAV_CMD_PREFLIGHT_CALIBRATION with PX4's "[cal]" texts), selftest (a minimal vehicle for
 `python -m viva_sitl.mavlink.selftest`; the test clients live in tests/mav_client.py).
 The endpoint consumes Autopilot.pop_events() (STATUSTEXT, MISSION_ITEM_REACHED); add_event_listener() lets the app
 log the same texts.

@@ -41,10 +41,12 @@ from viva_sitl.mavlink.base import (
     VehicleLink,
     statustext_messages,
 )
+from viva_sitl.mavlink.calibration import CalibrationWorker
 from viva_sitl.mavlink.camera import CameraComponent, is_camera_command
 from viva_sitl.mavlink.codec import DatagramParser, Encoder
 from viva_sitl.mavlink.commands import CommandHandler, CommandRequest
 from viva_sitl.mavlink.ftp import FtpServer
+from viva_sitl.mavlink.logs import LogProtocol
 from viva_sitl.mavlink.mission import MissionLimits, MissionProtocol
 from viva_sitl.mavlink.offboard import (
     Rejected,
@@ -288,6 +290,9 @@ class MavlinkEndpoint:
         )
         self.params = ParamProtocol(vehicle.autopilot.params, self, self._statustext)
         self.ftp = FtpServer(self)
+        self.logs = LogProtocol(self)  # the app points it at the run's ULog (logs.set_source)
+        self.calibration = CalibrationWorker(vehicle, self._statustext)
+        self.commands.handlers[M.MAV_CMD_PREFLIGHT_CALIBRATION] = self.calibration.handle
         limits = MissionLimits(
             self.config.mission_max_items, self.config.mission_retry_s, self.config.mission_max_retries
         )
@@ -319,6 +324,16 @@ class MavlinkEndpoint:
             ),
             M.MAVLINK_MSG_ID_PARAM_SET: self._targeted(lambda _lk, o, m: self.params.handle_set(o, m)),
             M.MAVLINK_MSG_ID_FILE_TRANSFER_PROTOCOL: self._targeted(lambda _lk, o, m: self.ftp.handle(o, m)),
+            M.MAVLINK_MSG_ID_LOG_REQUEST_LIST: self._targeted(
+                lambda _lk, o, m: self.logs.handle_request_list(o, m)
+            ),
+            M.MAVLINK_MSG_ID_LOG_REQUEST_DATA: self._targeted(
+                lambda _lk, o, m: self.logs.handle_request_data(o, m)
+            ),
+            M.MAVLINK_MSG_ID_LOG_REQUEST_END: self._targeted(
+                lambda _lk, o, m: self.logs.handle_request_end(o, m)
+            ),
+            M.MAVLINK_MSG_ID_LOG_ERASE: self._targeted(lambda _lk, o, m: self.logs.handle_erase(o, m)),
             M.MAVLINK_MSG_ID_MISSION_COUNT: self._targeted(
                 lambda _lk, o, m: self.mission.handle_count(o, m, self._now())
             ),
