@@ -45,8 +45,9 @@ from viva_sitl.camera.projection import (
     pixel_to_ground,
     project_ned,
 )
-from viva_sitl.camera.pyramid import LazyPyramid, build_pyramid, max_pyramid_level
+from viva_sitl.camera.pyramid import LazyPyramid, build_pyramid
 from viva_sitl.camera.renderer import Renderer, RenderResult, render_view
+from viva_sitl.imaging import max_pyramid_level
 
 __all__ = [
     "DEFAULT_FILL_BGR",
