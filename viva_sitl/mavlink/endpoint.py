@@ -59,14 +59,7 @@ from viva_sitl.mavlink.signing import SigningState
 from viva_sitl.mavlink.telemetry import LinkStreams, TelemetryBuilder
 from viva_sitl.mavlink.tlog import TlogWriter
 
-__all__ = [
-    "EndpointStartError",
-    "EndpointStats",
-    "MavlinkConfig",
-    "MavlinkEndpoint",
-    "PortInUseError",
-    "VehicleLink",
-]
+__all__ = ["MavlinkEndpoint", "VehicleLink"]  # its config, counters and errors: viva_sitl.mavlink.config
 
 log = logging.getLogger(__name__)
 M = mavlink2
