@@ -128,9 +128,7 @@ class SelftestVehicle:
 
 
 def _parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(
-        prog="python -m viva_sitl.selftest", description=__doc__.split("\n")[0]
-    )
+    p = argparse.ArgumentParser(prog="python -m viva_sitl.selftest", description=__doc__.split("\n")[0])
     p.add_argument("--instance", type=int, default=0)
     p.add_argument("--listen", default="127.0.0.1")
     p.add_argument("--api-remote-port", type=int, help="default 14540+instance; 0 = answer only who talks")

@@ -536,7 +536,7 @@ def land_assist_limits(
 def overview_rgb(env: LandingEnv, max_px: int) -> NDArray[np.uint8]:
     """The footage frame at the env's footage time (risk + objects, viva_sitl.world.overlay), the vehicle and its
     camera footprint drawn on it; RGB."""
-    from viva_sitl.dashboard.overview import footprint_px
+    from viva_sitl.camera.projection import footprint_px
     from viva_sitl.world.overlay import render_overview
 
     t = env.footage_time_s
