@@ -10,6 +10,7 @@ Two checks that keep the layering mends from quietly coming undone:
 from __future__ import annotations
 
 import ast
+import importlib
 import json
 import subprocess
 import sys
@@ -54,6 +55,16 @@ def test_core_module_loads_no_io_stack(module: str) -> None:
     got = _import_alone(module)
     print(f"import {module}: {got['s']:.3f} s")  # type: ignore[str-format]
     assert got["heavy"] == [], f"import {module} loaded {got['heavy']}: a core module reaches an upper layer"
+
+
+@pytest.mark.parametrize("face", ["viva_sitl.mavlink", "viva_sitl.video", "viva_sitl.perception"])
+def test_lazy_package_faces_resolve_every_name(face: str) -> None:
+    """The faces that load their parts on first use still give every name they list, and refuse unknown ones."""
+    module = importlib.import_module(face)
+    for name in module.__all__:
+        assert getattr(module, name) is not None, f"{face}.{name}"
+    with pytest.raises(AttributeError, match="no_such_name"):
+        module.no_such_name  # noqa: B018
 
 
 def _module_name(path: Path) -> str:
