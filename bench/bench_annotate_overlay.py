@@ -16,9 +16,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from viva_sitl.cli_footage import default_tracks_path
 from viva_sitl.footage import open_footage
 from viva_sitl.footage.boxfiles import parse_viva
-from viva_sitl.footage.cli import default_tracks_path
 from viva_sitl.footage.loader import resolve_metadata
 
 OUT = Path(__file__).resolve().parent / "out"

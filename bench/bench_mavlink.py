@@ -3,7 +3,7 @@ offboard setpoints per second it handles without backlog.
 
     python bench/bench_mavlink.py [--quick]
 
-The vehicle runs as a subprocess (`python -m viva_sitl.mavlink.selftest`: real Autopilot + EAV + MavlinkEndpoint,
+The vehicle runs as a subprocess (`python -m viva_sitl.selftest`: real Autopilot + EAV + MavlinkEndpoint,
 no video) on free ports; this script is the client (pymavlink codec over a UDP socket on 127.0.0.1).
 
 1. Telemetry: every message type received for T seconds on the API link (PX4 "onboard" profile); rate vs nominal,
@@ -58,7 +58,7 @@ class Vehicle:
         self.dir = tempfile.TemporaryDirectory(prefix="bench_mavlink_")
         self.stats_path = Path(self.dir.name) / "stats.json"
         cmd = [
-            sys.executable, "-m", "viva_sitl.mavlink.selftest", "--api-remote-port", str(client_port),
+            sys.executable, "-m", "viva_sitl.selftest", "--api-remote-port", str(client_port),
             "--gcs-remote-port", "0", "--api-local-port", "0", "--gcs-local-port", "0",
             "--stats-file", str(self.stats_path),
         ]  # fmt: skip

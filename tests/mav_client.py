@@ -20,8 +20,9 @@ from pymavlink.dialects.v20 import common as mavlink2
 
 from viva_sitl.mavlink.base import MavMessage
 from viva_sitl.mavlink.camera_link import CameraLink
-from viva_sitl.mavlink.endpoint import MavlinkConfig, MavlinkEndpoint
-from viva_sitl.mavlink.selftest import SelftestVehicle
+from viva_sitl.mavlink.config import MavlinkConfig
+from viva_sitl.mavlink.endpoint import MavlinkEndpoint
+from viva_sitl.selftest import SelftestVehicle
 
 
 class VehicleThread:

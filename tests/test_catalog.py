@@ -15,7 +15,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from viva_sitl.footage import CatalogSpec, FootageError, VideoSource, footage_main, open_footage
+from viva_sitl.cli_footage import footage_main
+from viva_sitl.footage import CatalogSpec, FootageError, VideoSource, open_footage
 from viva_sitl.footage.catalog import RemoteFile, download_catalog, download_file, parse_record
 from viva_sitl.footage.ingest import ingest
 from viva_sitl.footage.testclip import read_code, write_coded_clip

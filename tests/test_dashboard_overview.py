@@ -11,7 +11,8 @@ import cv2
 import numpy as np
 import pytest
 
-from viva_sitl.dashboard.overview import CropRequest, OverviewImages, footprint_px
+from viva_sitl.camera.projection import footprint_px
+from viva_sitl.dashboard.overview import CropRequest, OverviewImages
 from viva_sitl.footage import open_footage
 
 W8K, H8K = 7680, 4320

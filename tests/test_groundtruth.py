@@ -19,6 +19,7 @@ import cv2
 import numpy as np
 import pytest
 
+from viva_sitl.cli_footage import footage_main
 from viva_sitl.footage import FootageError, FootageGeometry, open_footage
 from viva_sitl.footage.boxfiles import (
     BoxRow,
@@ -31,7 +32,6 @@ from viva_sitl.footage.boxfiles import (
     read_boxes,
     write_viva,
 )
-from viva_sitl.footage.cli import footage_main
 from viva_sitl.footage.synthetic import SyntheticField
 from viva_sitl.footage.synthetic_actors import DEFAULT_ACTORS, actor_position_ne_m
 from viva_sitl.footage.worldmeta import OBJECT_CLASS_LABELS

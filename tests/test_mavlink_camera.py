@@ -13,7 +13,7 @@ from pymavlink.dialects.v20 import common as M
 
 from viva_sitl.mavlink import CaptureResult, MavlinkConfig
 from viva_sitl.mavlink.camera_link import DEFAULT_CAMERA_INFO
-from viva_sitl.mavlink.selftest import SnapshotCamera
+from viva_sitl.selftest import SnapshotCamera
 
 CAM = 100
 

@@ -16,7 +16,7 @@ from pymavlink.dialects.v20 import common as M
 from viva_sitl.autopilot import FlightMode
 from viva_sitl.geo import GeoOrigin
 from viva_sitl.mavlink import MavlinkConfig
-from viva_sitl.mavlink.selftest import SnapshotCamera
+from viva_sitl.selftest import SnapshotCamera
 
 NAN = math.nan
 GEO = GeoOrigin()

@@ -16,7 +16,7 @@ from pymavlink import mavutil
 from pymavlink.dialects.v20 import common as M
 
 from viva_sitl.mavlink import MavlinkConfig
-from viva_sitl.mavlink.selftest import SnapshotCamera
+from viva_sitl.selftest import SnapshotCamera
 
 KEY_HEX = "00112233445566778899aabbccddeeff00112233445566778899aabbccddeeff"
 

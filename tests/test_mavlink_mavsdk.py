@@ -14,7 +14,7 @@ import pytest
 from mav_client import MavClient, VehicleThread
 
 from viva_sitl.mavlink import MavlinkConfig
-from viva_sitl.mavlink.selftest import SnapshotCamera
+from viva_sitl.selftest import SnapshotCamera
 
 mavsdk_asyncio = pytest.importorskip(
     "mavsdk.asyncio", reason="MAVSDK 4.x (pip install mavsdk>=4) not installed"

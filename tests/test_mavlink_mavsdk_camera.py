@@ -25,7 +25,7 @@ from mav_client import VehicleThread
 from sitl_process import free_tcp_port
 
 from viva_sitl.mavlink import MavlinkConfig
-from viva_sitl.mavlink.selftest import SnapshotCamera
+from viva_sitl.selftest import SnapshotCamera
 
 T = TypeVar("T")
 STREAM_PORT = (

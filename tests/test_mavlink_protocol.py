@@ -1,5 +1,5 @@
 """Protocol-level tests of the MAVLink endpoint: a real MavlinkEndpoint over real UDP on 127.0.0.1 (free ports),
-driven by the real Autopilot + EAV dynamics (viva_sitl.mavlink.selftest.SelftestVehicle), and a pymavlink-codec client.
+driven by the real Autopilot + EAV dynamics (viva_sitl.selftest.SelftestVehicle), and a pymavlink-codec client.
 """
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ from pymavlink.dialects.v20 import common as M
 import viva_sitl
 from viva_sitl.autopilot import FlightMode, ParamStore
 from viva_sitl.mavlink import MavlinkConfig
-from viva_sitl.mavlink.selftest import SnapshotCamera
+from viva_sitl.selftest import SnapshotCamera
 
 NAN = math.nan
 

@@ -1,6 +1,6 @@
 """One clock: telemetry rates, SET_MESSAGE_INTERVAL, heartbeats and MAVLink-visible failsafe timers run on SIM time, so
 `--speed N` changes only the wall clock (as PX4 lockstep SITL). A real endpoint + vehicle over real UDP: the rate tests
-run the vehicle in its own process (`python -m viva_sitl.mavlink.selftest`), so this client, reading 1000+ messages a
+run the vehicle in its own process (`python -m viva_sitl.selftest`), so this client, reading 1000+ messages a
 wall second at 4x, never competes with it for the interpreter.
 
 Sim time is read from the messages themselves (ATTITUDE.time_boot_ms is the vehicle's simulation clock).
@@ -27,7 +27,7 @@ from sitl_process import REPO_ROOT
 
 from viva_sitl.autopilot import FlightMode
 from viva_sitl.mavlink import MavlinkConfig
-from viva_sitl.mavlink.selftest import SnapshotCamera
+from viva_sitl.selftest import SnapshotCamera
 
 SPEEDS = [1.0, 4.0]
 
@@ -45,7 +45,7 @@ def client() -> Iterator[MavClient]:
 
 @contextlib.contextmanager
 def _vehicle_process(client: MavClient, speed: float) -> Iterator[subprocess.Popen[str]]:
-    cmd = [sys.executable, "-m", "viva_sitl.mavlink.selftest", "--speed", str(speed), "--api-remote-port",
+    cmd = [sys.executable, "-m", "viva_sitl.selftest", "--speed", str(speed), "--api-remote-port",
            str(client.port), "--gcs-remote-port", "0", "--api-local-port", "0", "--gcs-local-port", "0"]  # fmt: skip
     env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(REPO_ROOT), os.environ.get("PYTHONPATH", "")]))
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True, env=env)

@@ -17,8 +17,8 @@ from viva_sitl.mavlink.base import statustext_messages
 from viva_sitl.mavlink.codec import DatagramParser, Encoder
 from viva_sitl.mavlink.mission import ItemError, WireItem, wire_to_item
 from viva_sitl.mavlink.params import decode_param_value, encode_param_value
-from viva_sitl.mavlink.selftest import SelftestVehicle
 from viva_sitl.mavlink.telemetry import LinkStreams
+from viva_sitl.selftest import SelftestVehicle
 
 ENC = Encoder(255, 190)
 
@@ -214,7 +214,7 @@ def test_endpoint_start_errors_are_clear() -> None:
     import socket
 
     from viva_sitl.mavlink import MavlinkEndpoint
-    from viva_sitl.mavlink.endpoint import PortInUseError
+    from viva_sitl.mavlink.config import PortInUseError
 
     vehicle = SelftestVehicle()
     bad_host = MavlinkConfig(

@@ -12,7 +12,7 @@ import pytest
 
 from viva_sitl.config import ConfigError, SimConfig
 from viva_sitl.perception import MagnifiedRender, OpenCVSR, SRMethod
-from viva_sitl.perception.sr import super_resolution_from_config
+from viva_sitl.perception.from_config import super_resolution_from_config
 from viva_sitl.vehicle import Vehicle
 
 REPO = Path(__file__).resolve().parents[1]

@@ -28,8 +28,8 @@ from pymavlink import mavutil
 from pymavlink.dialects.v20 import common as mavlink2
 from sitl_process import MavlinkPeer, SitlProcess, e2e_speed, free_tcp_port, home_of, offset, takeoff
 
+from viva_sitl.camera.projection import footprint_px
 from viva_sitl.config import SimConfig
-from viva_sitl.dashboard.overview import footprint_px
 from viva_sitl.dashboard.replay import ReplayError, eav_state_of, load_recording
 from viva_sitl.footage import open_footage
 from viva_sitl.recording import COLUMNS, read_run_info, read_trajectory

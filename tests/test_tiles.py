@@ -16,9 +16,9 @@ import numpy as np
 import pytest
 
 from viva_sitl.camera import CameraParams, LazyPyramid, Renderer
+from viva_sitl.cli_footage import footage_main
 from viva_sitl.config import SimConfig
 from viva_sitl.footage import FootageError, open_footage
-from viva_sitl.footage.cli import footage_main
 from viva_sitl.footage.geometry import FootageGeometry
 from viva_sitl.footage.ingest import ingest_tiles
 from viva_sitl.footage.testclip import write_coded_clip

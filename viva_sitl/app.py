@@ -40,8 +40,8 @@ from viva_sitl.footage.loader import resolve_metadata
 from viva_sitl.frame import RenderedFrame
 from viva_sitl.geo import GeoOrigin, home_from_env
 from viva_sitl.mavlink import CameraInfo, CaptureResult, MavlinkEndpoint, StreamEncoding, VideoStreamSpec
-from viva_sitl.mavlink.endpoint import EndpointStartError
-from viva_sitl.perception.sr import super_resolution_from_config
+from viva_sitl.mavlink.config import EndpointStartError
+from viva_sitl.perception.from_config import super_resolution_from_config
 from viva_sitl.recording import TRAJECTORY_FILE, Sample, TrajectoryRecorder, write_run_info
 from viva_sitl.sim import Simulator
 from viva_sitl.vehicle import Vehicle

@@ -8,39 +8,9 @@ import logging
 import math
 import sys
 from pathlib import Path
-from typing import NoReturn
 
 from viva_sitl import __version__
-from viva_sitl.cliargs import positive_float
-from viva_sitl.geo import GeoOrigin, parse_home
-
-
-def _pose(text: str) -> tuple[float, float, float, float, float, float]:
-    try:
-        values = tuple(float(v) for v in text.split(","))
-    except ValueError:
-        raise argparse.ArgumentTypeError(
-            f"--pose needs 6 numbers north,east,alt,roll,pitch,yaw; got {text!r}"
-        ) from None
-    if len(values) != 6 or not all(math.isfinite(v) for v in values):
-        raise argparse.ArgumentTypeError(
-            f"--pose needs 6 finite numbers north,east,alt,roll,pitch,yaw; got {text!r}"
-        )
-    return values  # type: ignore[return-value]
-
-
-def _home(text: str) -> GeoOrigin:
-    try:
-        return parse_home(text)
-    except ValueError as exc:
-        raise argparse.ArgumentTypeError(str(exc)) from None
-
-
-def _hfov(text: str) -> float:
-    v = positive_float(text)
-    if v >= 180.0:
-        raise argparse.ArgumentTypeError(f"a horizontal FoV must be below 180 degrees, got {text!r}")
-    return v
+from viva_sitl.cliargs import OneLineErrors, hfov, home, port, pose, positive_float
 
 
 def _footage_scale_flags(p: argparse.ArgumentParser) -> None:
@@ -49,32 +19,15 @@ def _footage_scale_flags(p: argparse.ArgumentParser) -> None:
         "--footage-alt", type=positive_float, metavar="M", help="recording altitude of the footage (m)"
     )
     p.add_argument(
-        "--footage-hfov", type=_hfov, metavar="DEG", help="recording horizontal FoV of the footage (deg)"
+        "--footage-hfov", type=hfov, metavar="DEG", help="recording horizontal FoV of the footage (deg)"
     )
     p.add_argument(
         "--footage-gsd", type=positive_float, metavar="M_PER_PX", help="ground sample distance of the footage"
     )
 
 
-def _port(text: str) -> int:
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a port number, got {text!r}") from None
-    if not 0 <= v <= 65535:
-        raise argparse.ArgumentTypeError(f"port out of range: {v}")
-    return v
-
-
-class _OneLineErrors(argparse.ArgumentParser):
-    """A bad flag is one line on stderr (the usage synopsis stays in --help), exit status 2 as argparse."""
-
-    def error(self, message: str) -> NoReturn:
-        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
-
-
 def build_parser() -> argparse.ArgumentParser:
-    parser = _OneLineErrors(
+    parser = OneLineErrors(
         prog="viva-sitl",
         description="A PX4-compatible MAVLink SITL whose vehicle flies inside real nadir drone footage.",
     )
@@ -90,7 +43,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     run.add_argument("--config", help="TOML config file (see configs/default.toml)")
     run.add_argument(
-        "--home", type=_home, metavar="LAT,LON[,ALT]",
+        "--home", type=home, metavar="LAT,LON[,ALT]",
         help="place the footage centre (the NED origin) here, as PX4_HOME_LAT/LON/ALT (default: PX4_HOME_* if "
         "set, else the footage's geo-reference, else PX4's 47.397742,8.545594,488)",
     )  # fmt: skip
@@ -109,21 +62,21 @@ def build_parser() -> argparse.ArgumentParser:
         "GCS local port 18570+N (the GCS remote stays 14550), RTP video 5600+4N, frame socket 5700+N",
     )
     run.add_argument("--listen", help="address to bind (default 127.0.0.1)")
-    run.add_argument("--api-port", type=_port, help="remote API/offboard port (default 14540+instance)")
-    run.add_argument("--gcs-port", type=_port, help="remote ground-station port (default 14550)")
+    run.add_argument("--api-port", type=port, help="remote API/offboard port (default 14540+instance)")
+    run.add_argument("--gcs-port", type=port, help="remote ground-station port (default 14550)")
     run.add_argument(
-        "--api-local-port", type=_port, help="local port of the API link (default 14580+instance)"
+        "--api-local-port", type=port, help="local port of the API link (default 14580+instance)"
     )
     run.add_argument(
-        "--gcs-local-port", type=_port, help="local port of the GCS link (default 18570+instance)"
+        "--gcs-local-port", type=port, help="local port of the GCS link (default 18570+instance)"
     )
     run.add_argument(
         "--video-port",
-        type=_port,
+        type=port,
         help="UDP port the H.264 RTP stream goes to (RTCP on port+1; default 5600+4*instance, used as given)",
     )
     run.add_argument(
-        "--mjpeg-port", type=_port, help="also stream MJPEG over RTP to this UDP port (used as given)"
+        "--mjpeg-port", type=port, help="also stream MJPEG over RTP to this UDP port (used as given)"
     )
     run.add_argument(
         "--frame-socket",
@@ -155,7 +108,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     run.add_argument(
         "--dashboard-port",
-        type=_port,
+        type=port,
         help="web dashboard port (default 8080+instance; when busy a free port is used; 0 = any free port)",
     )
     run.add_argument("--no-dashboard", action="store_true", help="do not serve the web dashboard")
@@ -169,7 +122,7 @@ def build_parser() -> argparse.ArgumentParser:
     replay.add_argument("--footage", help="footage to replay over (default: the one run.json names)")
     replay.add_argument("--listen", help="address to bind (default 127.0.0.1)")
     replay.add_argument(
-        "--dashboard-port", type=_port, help="dashboard port (default 8080; when busy a free port is used)"
+        "--dashboard-port", type=port, help="dashboard port (default 8080; when busy a free port is used)"
     )
     replay.add_argument(
         "--duration", type=positive_float, help="stop serving after this many wall-clock seconds"
@@ -184,7 +137,7 @@ def build_parser() -> argparse.ArgumentParser:
     render.add_argument("--footage", help="catalog name or path (default: synthetic)")
     render.add_argument("--config", help="TOML config file")
     render.add_argument(
-        "--pose", type=_pose, required=True, help="north,east,alt,roll,pitch,yaw (m above ground, deg)"
+        "--pose", type=pose, required=True, help="north,east,alt,roll,pitch,yaw (m above ground, deg)"
     )
     render.add_argument(
         "--time", type=float, default=0.0, help="simulation time in s (selects the footage frame)"
@@ -248,7 +201,7 @@ def _cmd_render(args: argparse.Namespace) -> int:
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     if argv[:1] == ["footage"]:  # the catalog has its own parser (and its own --help)
-        from viva_sitl.footage import footage_main
+        from viva_sitl.cli_footage import footage_main
 
         return footage_main(argv[1:])
     if argv[:1] == ["trials"]:  # landing trials have their own parser (viva_sitl/evaluation/cli.py)
@@ -276,7 +229,7 @@ def main(argv: list[str] | None = None) -> int:
         if args.command == "render":
             return _cmd_render(args)
         if args.command == "footage":
-            from viva_sitl.footage import footage_main
+            from viva_sitl.cli_footage import footage_main
 
             return footage_main(args.rest)
         if args.command == "run":

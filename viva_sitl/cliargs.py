@@ -1,9 +1,30 @@
-"""argparse value types shared by `viva-sitl` and `viva-sitl footage` (one message wording for bad numbers)."""
+"""argparse value types and the one-line-error parser shared by every `viva-sitl` command (one wording per mistake).
+
+positive_float  a finite number > 0                        "expected a positive number, got '...'"
+hfov            a positive number below 180 (degrees)      "a horizontal FoV must be below 180 degrees, ..."
+port            a UDP/TCP port 0..65535                    "expected a port number" / "port out of range: N"
+pose            north,east,alt,roll,pitch,yaw (6 numbers)  "--pose needs 6 (finite) numbers ..."
+home            lat,lon[,alt] (PX4_HOME_* syntax)          the message of viva_sitl.geo.parse_home
+nonneg_int      an integer >= 0                            "expected an integer >= 0, got '...'"
+pos_int         an integer >= 1                            "expected an integer >= 1, got '...'"
+positive_int    an integer >= 1 (perception's wording)     "expected a positive integer, got '...'"
+OneLineErrors   an ArgumentParser whose errors are one line: "prog: error: ... (see prog --help)", exit 2
+"""
 
 from __future__ import annotations
 
 import argparse
 import math
+from typing import NoReturn
+
+from viva_sitl.geo import GeoOrigin, parse_home
+
+
+class OneLineErrors(argparse.ArgumentParser):
+    """A bad flag is one line on stderr (the usage synopsis stays in --help), exit status 2 as argparse."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
 
 
 def positive_float(text: str) -> float:
@@ -13,4 +34,69 @@ def positive_float(text: str) -> float:
         raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
     if not (v > 0 and math.isfinite(v)):
         raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}")
+    return v
+
+
+def hfov(text: str) -> float:
+    v = positive_float(text)
+    if v >= 180.0:
+        raise argparse.ArgumentTypeError(f"a horizontal FoV must be below 180 degrees, got {text!r}")
+    return v
+
+
+def port(text: str) -> int:
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a port number, got {text!r}") from None
+    if not 0 <= v <= 65535:
+        raise argparse.ArgumentTypeError(f"port out of range: {v}")
+    return v
+
+
+def pose(text: str) -> tuple[float, float, float, float, float, float]:
+    try:
+        values = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"--pose needs 6 numbers north,east,alt,roll,pitch,yaw; got {text!r}"
+        ) from None
+    if len(values) != 6 or not all(math.isfinite(v) for v in values):
+        raise argparse.ArgumentTypeError(
+            f"--pose needs 6 finite numbers north,east,alt,roll,pitch,yaw; got {text!r}"
+        )
+    return values  # type: ignore[return-value]
+
+
+def home(text: str) -> GeoOrigin:
+    try:
+        return parse_home(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def nonneg_int(text: str) -> int:
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+    if v < 0:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {text!r}")
+    return v
+
+
+def pos_int(text: str) -> int:
+    v = nonneg_int(text)
+    if v < 1:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {text!r}")
+    return v
+
+
+def positive_int(text: str) -> int:
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
+    if v < 1:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}")
     return v

@@ -5,11 +5,11 @@
     [physics]  EavParams fields (rate_hz accepted for dt_s)    -> viva_sitl.dynamics.EavParams
     [physics.wind]                                             -> viva_sitl.dynamics.WindParams
     [camera]   CameraParams fields                             -> viva_sitl.camera.CameraParams
-    [mavlink]  MavlinkConfig fields                            -> viva_sitl.mavlink.MavlinkConfig
-    [video]    VideoConfig fields                              -> viva_sitl.video.VideoConfig
+    [mavlink]  MavlinkConfig fields                            -> viva_sitl.mavlink.config.MavlinkConfig
+    [video]    VideoConfig fields                              -> viva_sitl.video.config.VideoConfig
     [params]   PX4 parameter overrides (NAME = number), checked against the PX4 parameter set at load
     [perception.sr]  method (none|bicubic|fsrcnn|espcn|edsr), model_path, scale, min_magnification
-                                                               -> viva_sitl.perception.SRConfig (the simulator's
+                                                               -> viva_sitl.perception.config.SRConfig (the simulator's
                                                                   super-resolution; the model loads at start-up)
 
 Unknown tables or keys are errors with the exact key named: a typo never silently falls back to a default.
@@ -32,9 +32,9 @@ from viva_sitl.autopilot.params import ParamStore
 from viva_sitl.camera import CameraParams
 from viva_sitl.dynamics import EavParams
 from viva_sitl.geo import GeoOrigin, parse_home
-from viva_sitl.mavlink import MavlinkConfig
-from viva_sitl.perception.sr import SRConfig
-from viva_sitl.video import VideoConfig
+from viva_sitl.mavlink.config import MavlinkConfig
+from viva_sitl.perception.config import SRConfig
+from viva_sitl.video.config import VideoConfig
 
 T = TypeVar("T")
 

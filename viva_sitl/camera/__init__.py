@@ -18,6 +18,7 @@ Public API:
     ground_to_image_homography(pos_ned_m, att_rpy_rad, params) -> H: (north, east, 1) -> (u, v, 1)
     footage_to_image_homography(geometry, pos_ned_m, att_rpy_rad, params) -> H: footage px -> VAC px
     ground_footprint(pos_ned_m, att_rpy_rad, params) -> (4, 3) NED corners TL, TR, BR, BL, or None
+    footprint_px(geometry, params, pos_ned_m, att_rpy_rad) -> the same 4 corners in footage px, or None
 
     build_pyramid(image_bgr, levels) -> [level0, level1, ...]      (2x box-filter mip-map, INTER_AREA)
     LazyPyramid(image_bgr).level(l)                                 (builds levels on first use, thread-safe)
@@ -39,14 +40,16 @@ from viva_sitl.camera.projection import (
     camera_extrinsics,
     camera_intrinsics,
     footage_to_image_homography,
+    footprint_px,
     frame_camera_fields,
     ground_footprint,
     ground_to_image_homography,
     pixel_to_ground,
     project_ned,
 )
-from viva_sitl.camera.pyramid import LazyPyramid, build_pyramid, max_pyramid_level
+from viva_sitl.camera.pyramid import LazyPyramid, build_pyramid
 from viva_sitl.camera.renderer import Renderer, RenderResult, render_view
+from viva_sitl.imaging import max_pyramid_level
 
 __all__ = [
     "DEFAULT_FILL_BGR",
@@ -64,6 +67,7 @@ __all__ = [
     "camera_extrinsics",
     "camera_intrinsics",
     "footage_to_image_homography",
+    "footprint_px",
     "frame_camera_fields",
     "ground_footprint",
     "ground_to_image_homography",

@@ -169,6 +169,20 @@ def ground_footprint(pos_ned_m: ArrayLike, att_rpy_rad: ArrayLike, params: Camer
     return g
 
 
+def footprint_px(
+    geometry: FootageGeometry, camera: CameraParams, pos_ned_m: ArrayLike, att_rpy_rad: ArrayLike
+) -> list[list[float]] | None:
+    """The VAC's ground footprint (4 corners, footage px; a trapezoid under tilt); None when a corner ray is at or
+    above the horizon (the footprint is unbounded)."""
+    try:
+        g = ground_footprint(pos_ned_m, att_rpy_rad, camera)
+    except ValueError:
+        return None
+    if g is None:
+        return None
+    return [list(geometry.ned_to_px(float(n), float(e))) for n, e, _ in g]
+
+
 def clip_convex_polygon(poly_xy: F64, halfplanes: Sequence[F64]) -> F64:
     """Clip a convex polygon (N, 2) by half-planes a . (x, y, 1) >= 0 (Sutherland-Hodgman; hand-written: OpenCV's
     intersectConvexConvex needs bounded polygons, and these half-planes are unbounded)."""

@@ -18,6 +18,8 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from viva_sitl.imaging import half_size, max_pyramid_level
+
 U8 = NDArray[np.uint8]
 
 
@@ -26,24 +28,6 @@ def check_image(image_bgr: NDArray[np.generic]) -> None:
         raise ValueError("pyramid source must be a non-empty (h, w) or (h, w, c) array")
     if image_bgr.dtype != np.uint8:
         raise ValueError(f"pyramid source must be uint8, got {image_bgr.dtype}")
-
-
-def max_pyramid_level(width_px: int, height_px: int) -> int:
-    """Deepest useful level: halve while the smaller side is still above 1 px."""
-    level = 0
-    w, h = width_px, height_px
-    while min(w, h) > 1:
-        w, h = (w + 1) // 2, (h + 1) // 2
-        level += 1
-    return level
-
-
-def half_size(image: U8) -> U8:
-    """The next pyramid level: a 2x2 box average (INTER_AREA), odd sizes rounded up."""
-    h, w = image.shape[:2]
-    return np.asarray(
-        cv2.resize(image, ((w + 1) // 2, (h + 1) // 2), interpolation=cv2.INTER_AREA), dtype=np.uint8
-    )
 
 
 def level_from_source(src_w: int, src_h: int, level_w: int, level_h: int) -> NDArray[np.float64]:

@@ -22,8 +22,6 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from viva_sitl.camera import CameraParams
-from viva_sitl.camera.projection import ground_footprint
 from viva_sitl.footage import FootageGeometry, FootageSource, VideoSource, open_footage
 
 
@@ -64,20 +62,6 @@ class AnnotationLayer:
             )
         self._cache = (footage_frame_index, out)
         return out
-
-
-def footprint_px(
-    geometry: FootageGeometry, camera: CameraParams, pos_ned_m: Any, att_rpy_rad: Any
-) -> list[list[float]] | None:
-    """The VAC's ground footprint (4 corners, footage px; a trapezoid under tilt); None when a corner ray is at or
-    above the horizon (the footprint is unbounded)."""
-    try:
-        g = ground_footprint(pos_ned_m, att_rpy_rad, camera)
-    except ValueError:
-        return None
-    if g is None:
-        return None
-    return [list(geometry.ned_to_px(float(n), float(e))) for n, e, _ in g]
 
 
 def _finite_or_none(v: float) -> float | None:

@@ -32,6 +32,7 @@ from urllib.parse import urlsplit
 from aiohttp import WSMsgType, web
 
 from viva_sitl.autopilot import FlightMode, MissionCommand
+from viva_sitl.camera.projection import footprint_px
 from viva_sitl.dashboard.config import DashboardConfig
 from viva_sitl.dashboard.control import DIRECT, SELECTABLE_MODES, Controller
 from viva_sitl.dashboard.overview import (
@@ -39,7 +40,6 @@ from viva_sitl.dashboard.overview import (
     CropRequest,
     LayerProvider,
     OverviewImages,
-    footprint_px,
 )
 from viva_sitl.dashboard.vac import VacOutput
 

@@ -11,22 +11,10 @@ import sys
 from pathlib import Path
 from typing import Any
 
-
-def _nonneg_int(text: str) -> int:
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
-    if v < 0:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {text!r}")
-    return v
-
-
-def _pos_int(text: str) -> int:
-    v = _nonneg_int(text)
-    if v < 1:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {text!r}")
-    return v
+from viva_sitl.cliargs import nonneg_int as _nonneg_int
+from viva_sitl.cliargs import port as _port
+from viva_sitl.cliargs import pos_int as _pos_int
+from viva_sitl.cliargs import positive_float
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -66,8 +54,6 @@ def build_parser() -> argparse.ArgumentParser:
         "pilot (e.g. CPU vision) needs a lower one; the scenarios do not change",
     )  # fmt: skip
     r.add_argument("--no-progress", action="store_true", help="no progress bar")
-    from viva_sitl.cli import _port
-    from viva_sitl.cliargs import positive_float
     from viva_sitl.evaluation.human import MAVSDK_API_PORT, QGC_GCS_PORT, QGC_VIDEO_PORT
 
     f = sub.add_parser(

@@ -10,9 +10,10 @@ Sources: `VideoSource` (PyAV decode: sequential fast path, keyframe seek for jum
 `SyntheticField` (the built-in SYNTHETIC CALIBRATION FIELD: metric grid + markers with analytic trajectories, no
 edge: drawn around the camera wherever it flies; more moving `GroundObject`s via `add_object`; walking people, a
 crowd and cars with known paths from `synthetic_actors.py`).
-Metadata lives in viva_sitl/data/footage/<name>.toml (package data) (see `metadata.py`); DJI .SRT sidecars give the altitude.
-`viva-sitl footage list|info|get|ingest|show|annotate` is `footage_main` (catalog, Zenodo download with resume and checksums,
-ingest into a fast-decoding cache). Errors users can cause raise `FootageError` (a ValueError) with one message.
+Metadata lives in viva_sitl/data/footage/<name>.toml (package data) (see `metadata.py`); DJI .SRT sidecars give the
+altitude. Catalog download (`catalog.py`, resume and checksums) and ingest (`ingest.py`, a fast-decoding cache) are
+here; their command line, `viva-sitl footage list|info|get|ingest|show|annotate`, is viva_sitl/cli_footage.py.
+Errors users can cause raise `FootageError` (a ValueError) with one message.
 Threading: use a source from one thread (the renderer's worker); `frame()` is locked, so other callers are
 serialised, never corrupt.
 """
@@ -25,15 +26,6 @@ from viva_sitl.footage.metadata import AnnotationFormat, CatalogSpec, FootageKin
 from viva_sitl.footage.source import FootageSource, StillSource, VideoSource
 from viva_sitl.footage.srt import SrtSample, SrtTrack, parse_srt, parse_srt_text
 from viva_sitl.footage.synthetic import GroundObject, MarkerSpec, SyntheticField, SyntheticFieldParams
-
-
-def footage_main(argv: list[str]) -> int:
-    """`viva-sitl footage ...` (viva_sitl.footage.cli), imported on call: the CLI's catalog/download/ingest modules
-    (~70 ms) stay out of every process that only flies over footage (each trial worker imports this package)."""
-    from viva_sitl.footage.cli import footage_main as main
-
-    return main(argv)
-
 
 __all__ = [
     "Annotation",
@@ -52,7 +44,6 @@ __all__ = [
     "SyntheticField",
     "SyntheticFieldParams",
     "VideoSource",
-    "footage_main",
     "open_footage",
     "parse_srt",
     "parse_srt_text",

@@ -14,9 +14,8 @@ import math
 import threading
 from fractions import Fraction
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import av
 import cv2
 import numpy as np
 from numpy.typing import NDArray
@@ -25,6 +24,9 @@ from viva_sitl.footage.annotations import Annotation, AnnotationStore
 from viva_sitl.footage.errors import FootageError
 from viva_sitl.footage.geometry import FootageGeometry
 from viva_sitl.footage.metadata import FootageMetadata
+
+if TYPE_CHECKING:
+    import av  # PyAV loads when a video is opened: sources of stills and the synthetic field never need it
 
 log = logging.getLogger(__name__)
 
@@ -165,6 +167,8 @@ class _Decoder:
     """One PyAV decoder over one file: sequential fast path, keyframe seek for backward or long jumps."""
 
     def __init__(self, path: Path) -> None:
+        import av
+
         try:
             self.container = av.open(str(path), mode="r")
         except (av.FFmpegError, OSError) as exc:
@@ -213,6 +217,8 @@ class _Decoder:
         if self.stream.duration:  # no frame count in the header (e.g. MKV): duration x rate
             return max(1, round(float(self.stream.duration * self.time_base * self._rate)))
         if self.container.duration:
+            import av
+
             return max(1, round(self.container.duration / av.time_base * self.native_fps))
         count = sum(1 for p in self.container.demux(self.stream) if p.size > 0)  # last resort: count packets
         self.container.seek(0, stream=self.stream)
@@ -237,6 +243,8 @@ class _Decoder:
         self._last_index = -1
 
     def _next(self) -> av.VideoFrame | None:
+        import av
+
         try:
             f: av.VideoFrame = next(self._iter)
         except StopIteration:
@@ -384,6 +392,8 @@ def crop_to_bgr(
     box = scratch if scratch is not None else []
     small = next((f for f in box if (f.width, f.height, f.format.name) == (cw, ch, frame.format.name)), None)
     if small is None:
+        import av
+
         small = av.VideoFrame(cw, ch, frame.format.name)
         box.append(small)
         # bounded: at most SCRATCH_FRAMES frames and, beyond the newest, SCRATCH_FRAME_AREAS source frames of pixels

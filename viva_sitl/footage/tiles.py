@@ -50,11 +50,11 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from viva_sitl.camera.pyramid import half_size, max_pyramid_level
 from viva_sitl.footage.errors import FootageError
 from viva_sitl.footage.geometry import FootageGeometry
 from viva_sitl.footage.metadata import FootageMetadata
 from viva_sitl.footage.source import FootageSource
+from viva_sitl.imaging import half_size, max_pyramid_level
 
 U8 = NDArray[np.uint8]
 

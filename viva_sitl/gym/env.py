@@ -515,7 +515,7 @@ def _super_resolution(config: SimConfig) -> Any:
     """The config's [perception.sr] render hook (None without one), loaded once per env."""
     if config.perception.sr.method.value == "none":
         return None
-    from viva_sitl.perception.sr import super_resolution_from_config
+    from viva_sitl.perception.from_config import super_resolution_from_config
 
     return super_resolution_from_config(config)
 
@@ -545,7 +545,7 @@ def land_assist_limits(
 def overview_rgb(env: LandingEnv, max_px: int) -> NDArray[np.uint8]:
     """The footage frame at the env's footage time (risk + objects, viva_sitl.world.overlay), the vehicle and its
     camera footprint drawn on it; RGB."""
-    from viva_sitl.dashboard.overview import footprint_px
+    from viva_sitl.camera.projection import footprint_px
     from viva_sitl.world.overlay import render_overview
 
     t = env.footage_time_s

@@ -14,6 +14,15 @@ from pymavlink.dialects.v20 import common as mavlink2
 from viva_sitl.mavlink.base import MavMessage
 from viva_sitl.mavlink.signing import SigningState, signing_timestamp_now
 
+
+def message_id(name: str) -> int:
+    """MAVLink message id by name ("ATTITUDE" -> 30); ValueError for unknown names."""
+    msgid = getattr(mavlink2, f"MAVLINK_MSG_ID_{name.upper()}", None)
+    if not isinstance(msgid, int):
+        raise ValueError(f"unknown MAVLink message name {name!r}")
+    return msgid
+
+
 # A datagram from a real client holds one or a few frames; adversarial garbage full of start markers would
 # otherwise cost one CRC per byte. Past this many decode attempts the rest of the datagram is dropped (counted).
 MAX_ATTEMPTS_PER_DATAGRAM = 256

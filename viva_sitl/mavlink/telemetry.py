@@ -9,7 +9,6 @@ lockstep SITL, whatever the --speed factor.
 
 from __future__ import annotations
 
-import enum
 import math
 import time
 from collections.abc import Callable
@@ -20,6 +19,7 @@ from pymavlink.dialects.v20 import common as mavlink2
 from viva_sitl.autopilot.types import FlightMode, LandedState
 from viva_sitl.dynamics import EavState, quat_from_euler
 from viva_sitl.mavlink.base import UINT16_MAX, MavMessage, VehicleLink, clamp_int, time_boot_ms, time_boot_us
+from viva_sitl.mavlink.config import StreamProfile
 from viva_sitl.mavlink.version import FLIGHT_SW_VERSION, flight_custom_version
 
 M = mavlink2
@@ -72,13 +72,6 @@ _MODE_FLAGS = {
     6: _AU | _ST | _GU,
     7: _MI | _ST,
 }
-
-
-class StreamProfile(enum.Enum):
-    """PX4 mavlink mode whose default rates a link uses."""
-
-    ONBOARD = "onboard"
-    NORMAL = "normal"
 
 
 # message id -> default rate (Hz) per profile; absent = not streamed by default (SET_MESSAGE_INTERVAL can enable it)
@@ -138,14 +131,6 @@ def battery_charge_state(remaining: float, params: object) -> int:
     if remaining <= thr("BAT_LOW_THR", 0.15):
         return int(M.MAV_BATTERY_CHARGE_STATE_LOW)
     return int(M.MAV_BATTERY_CHARGE_STATE_OK)
-
-
-def message_id(name: str) -> int:
-    """MAVLink message id by name ("ATTITUDE" -> 30); ValueError for unknown names."""
-    msgid = getattr(M, f"MAVLINK_MSG_ID_{name.upper()}", None)
-    if not isinstance(msgid, int):
-        raise ValueError(f"unknown MAVLink message name {name!r}")
-    return msgid
 
 
 def _euler_rates_to_body(

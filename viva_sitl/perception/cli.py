@@ -5,24 +5,9 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
-from typing import NoReturn
 
+from viva_sitl.cliargs import OneLineErrors, positive_int
 from viva_sitl.perception.errors import PerceptionError
-
-
-class _Parser(argparse.ArgumentParser):
-    def error(self, message: str) -> NoReturn:
-        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
-
-
-def _positive_int(text: str) -> int:
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
-    if v < 1:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}")
-    return v
 
 
 def _run(fn: object, prog: str) -> int:
@@ -39,11 +24,11 @@ def _run(fn: object, prog: str) -> int:
 
 
 def dataset_main(argv: list[str]) -> int:
-    p = _Parser(prog="viva-sitl dataset", description="labelled VAC datasets from footage ground truth")
+    p = OneLineErrors(prog="viva-sitl dataset", description="labelled VAC datasets from footage ground truth")
     sub = p.add_subparsers(dest="cmd", required=True)
     e = sub.add_parser("export", help="VAC images at seeded random poses + YOLO boxes, risk masks, poses")
     e.add_argument("--footage", required=True, help="catalog name(s) or path(s), comma-separated")
-    e.add_argument("--n", type=_positive_int, required=True, help="images per footage")
+    e.add_argument("--n", type=positive_int, required=True, help="images per footage")
     e.add_argument("--seed", type=int, default=0)
     e.add_argument("--poses", default="", metavar="SPEC", help="e.g. alt=15:60,tilt=0:15,yaw=0:360,radius=60")
     e.add_argument("--split", choices=["region", "footage"], default="region")
@@ -82,23 +67,25 @@ def dataset_main(argv: list[str]) -> int:
 
 
 def perception_main(argv: list[str]) -> int:
-    p = _Parser(prog="viva-sitl perception", description="train the perception models (needs the extras)")
+    p = OneLineErrors(
+        prog="viva-sitl perception", description="train the perception models (needs the extras)"
+    )
     sub = p.add_subparsers(dest="cmd", required=True)
     sr = sub.add_parser("train-sr", help="train our EDSR self-supervised on footage frames")
     sr.add_argument("--footage", required=True, help="catalog name(s) or path(s), comma-separated")
-    sr.add_argument("--frames", type=_positive_int, default=8, help="frames per footage (evenly spread)")
+    sr.add_argument("--frames", type=positive_int, default=8, help="frames per footage (evenly spread)")
     sr.add_argument("--scale", type=int, choices=[2, 3, 4], default=2)
-    sr.add_argument("--steps", type=_positive_int, default=300)
-    sr.add_argument("--feats", type=_positive_int, default=32)
-    sr.add_argument("--blocks", type=_positive_int, default=8)
+    sr.add_argument("--steps", type=positive_int, default=300)
+    sr.add_argument("--feats", type=positive_int, default=32)
+    sr.add_argument("--blocks", type=positive_int, default=8)
     sr.add_argument("--seed", type=int, default=0)
     sr.add_argument("-o", "--output", required=True, help="checkpoint (.pt)")
     seg = sub.add_parser("train-segmenter", help="train the risk U-Net on an exported dataset")
     seg.add_argument("--data", required=True, help="dataset directory (from `viva-sitl dataset export`)")
-    seg.add_argument("--epochs", type=_positive_int, default=10)
+    seg.add_argument("--epochs", type=positive_int, default=10)
     seg.add_argument("--size", default="320x240", help="training/inference size WxH (images are resized)")
-    seg.add_argument("--width", type=_positive_int, default=16, help="U-Net base channels")
-    seg.add_argument("--batch", type=_positive_int, default=8)
+    seg.add_argument("--width", type=positive_int, default=16, help="U-Net base channels")
+    seg.add_argument("--batch", type=positive_int, default=8)
     seg.add_argument("--lr", type=float, default=3e-3, help="peak learning rate (one-cycle)")
     seg.add_argument(
         "--patience", type=int, default=0, help="stop after N epochs without val mIoU gain (0: off)"
@@ -116,9 +103,9 @@ def perception_main(argv: list[str]) -> int:
     )
     det = sub.add_parser("train-detector", help="train a YOLO detector (ultralytics) on an exported dataset")
     det.add_argument("--data", required=True, help="dataset directory or its data.yaml")
-    det.add_argument("--epochs", type=_positive_int, default=30)
-    det.add_argument("--imgsz", type=_positive_int, default=640)
-    det.add_argument("--batch", type=_positive_int, default=8)
+    det.add_argument("--epochs", type=positive_int, default=30)
+    det.add_argument("--imgsz", type=positive_int, default=640)
+    det.add_argument("--batch", type=positive_int, default=8)
     det.add_argument("--model", default="yolov8n.yaml", help="architecture .yaml (offline) or starting .pt")
     det.add_argument("--seed", type=int, default=0)
     det.add_argument(

@@ -20,6 +20,7 @@ import torch
 from numpy.typing import NDArray
 from torch import nn
 
+from viva_sitl.imaging import check_bgr
 from viva_sitl.perception.errors import PerceptionError
 from viva_sitl.perception.quality import degrade_area
 
@@ -80,9 +81,7 @@ class EDSRUpscaler:
         self.name = f"edsr_x{self.scale}"
 
     def upscale(self, image_bgr: U8) -> U8:
-        from viva_sitl.perception.sr import check_bgr
-
-        img = check_bgr(image_bgr)
+        img = check_bgr(image_bgr, error=PerceptionError)
         x = torch.from_numpy(np.ascontiguousarray(img[..., ::-1])).permute(2, 0, 1)[None].float() / 255.0
         with torch.inference_mode():
             y = self.model(x)[0].clamp_(0.0, 1.0).mul_(255.0).add_(0.5)

@@ -20,11 +20,10 @@ Methods (`SRConfig.method`): none | bicubic | fsrcnn | espcn | edsr.
 
 from __future__ import annotations
 
-import enum
 import math
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Protocol
+from typing import Protocol
 
 import cv2
 import numpy as np
@@ -38,47 +37,12 @@ from viva_sitl.camera.projection import (
     image_corners_px,
 )
 from viva_sitl.camera.renderer import Renderer, RenderResult
+from viva_sitl.imaging import check_bgr
+from viva_sitl.perception.config import SRConfig, SRMethod
 from viva_sitl.perception.errors import PerceptionError, require_torch
-
-if TYPE_CHECKING:
-    from viva_sitl.config import SimConfig
 
 U8 = NDArray[np.uint8]
 F64 = NDArray[np.float64]
-
-
-class SRMethod(enum.Enum):
-    NONE = "none"
-    BICUBIC = "bicubic"
-    FSRCNN = "fsrcnn"
-    ESPCN = "espcn"
-    EDSR = "edsr"
-
-
-@dataclass(frozen=True)
-class SRConfig:
-    """What upscales the magnified footage. `min_magnification`: VAC px per footage px above which SR runs."""
-
-    method: SRMethod = SRMethod.NONE
-    model_path: str = ""  # .pb for fsrcnn/espcn, an EDSR checkpoint (.pt) for edsr
-    scale: int = 2  # for bicubic only (the models carry their own)
-    min_magnification: float = 1.0
-
-    def __post_init__(self) -> None:
-        if not isinstance(self.method, SRMethod):
-            try:
-                object.__setattr__(self, "method", SRMethod(str(self.method).lower()))
-            except ValueError:
-                names = ", ".join(m.value for m in SRMethod)
-                raise PerceptionError(
-                    f"unknown super-resolution method {self.method!r} (known: {names})"
-                ) from None
-        if not (math.isfinite(self.min_magnification) and self.min_magnification > 0.0):
-            raise PerceptionError(
-                f"min_magnification must be a positive number, got {self.min_magnification!r}"
-            )
-        if self.scale not in (2, 3, 4):
-            raise PerceptionError(f"scale must be 2, 3 or 4, got {self.scale!r}")
 
 
 class Upscaler(Protocol):
@@ -86,13 +50,6 @@ class Upscaler(Protocol):
     scale: int
 
     def upscale(self, image_bgr: U8) -> U8: ...
-
-
-def check_bgr(image: Any, what: str = "image") -> U8:
-    a = np.asarray(image)
-    if a.dtype != np.uint8 or a.ndim != 3 or a.shape[2] != 3 or a.shape[0] < 1 or a.shape[1] < 1:
-        raise PerceptionError(f"{what} must be an HxWx3 uint8 BGR array, got {a.dtype} {a.shape}")
-    return a
 
 
 class BicubicUpscaler:
@@ -103,7 +60,7 @@ class BicubicUpscaler:
         self.scale = scale
 
     def upscale(self, image_bgr: U8) -> U8:
-        img = check_bgr(image_bgr)
+        img = check_bgr(image_bgr, error=PerceptionError)
         h, w = img.shape[:2]
         return np.asarray(cv2.resize(img, (w * self.scale, h * self.scale), interpolation=cv2.INTER_CUBIC))
 
@@ -289,7 +246,7 @@ class OpenCVSR:
         return y
 
     def upscale(self, image_bgr: U8) -> U8:
-        img = check_bgr(image_bgr)
+        img = check_bgr(image_bgr, error=PerceptionError)
         h, w = img.shape[:2]
         ycc = cv2.cvtColor(img, cv2.COLOR_BGR2YCrCb)
         y = self.upscale_luma(ycc[..., 0].astype(np.float32) / 255.0)
@@ -374,7 +331,7 @@ class MagnifiedRender:
         """The VAC image warped from the upscaled footage crop (`image0_bgr`: the full-resolution footage frame)."""
         p = renderer.params
         pos, att = _vec3("pos_ned_m", pos_ned_m), _vec3("att_rpy_rad", att_rpy_rad)
-        src = check_bgr(image0_bgr, "footage frame")
+        src = check_bgr(image0_bgr, "footage frame", PerceptionError)
         geom_to_src = renderer._image_scale(src)
         h_f2i, _ = self._vac_to_geometry(renderer, pos, att)
         vac_to_src = np.linalg.inv(h_f2i @ np.linalg.inv(geom_to_src))
@@ -425,18 +382,3 @@ def magnified_render_from_config(config: SRConfig) -> MagnifiedRender | None:
     """What `Simulator.super_resolution` should hold for a config (None for method none)."""
     up = load_upscaler(config)
     return None if up is None else MagnifiedRender(up, config.min_magnification)
-
-
-def super_resolution_from_config(config: SimConfig) -> MagnifiedRender | None:
-    """A run's `[perception.sr]` -> what Vehicle(super_resolution=) / Simulator.super_resolution holds (None: method
-    none). The model loads here, once per vehicle, so a bad model path or a missing extra is one ConfigError at
-    start-up, not a failure at the first low frame (the caller builds it: the core never imports perception)."""
-    from viva_sitl.config import ConfigError
-
-    sr = config.perception.sr
-    if sr.method is SRMethod.NONE:
-        return None
-    try:
-        return magnified_render_from_config(sr)
-    except PerceptionError as exc:
-        raise ConfigError(f"[perception.sr]: {exc}") from None

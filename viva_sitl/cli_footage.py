@@ -1,4 +1,10 @@
-"""`viva-sitl footage list | info | get | ingest | show | annotate` (the lead's CLI passes everything after `footage` to footage_main)."""
+"""`viva-sitl footage list | info | get | ingest | show | annotate` (viva_sitl.cli passes everything after `footage`
+to `footage_main`).
+
+On the top floor with the other CLIs: `show` and `annotate` build a world (viva_sitl.world) over the footage, and the
+footage package itself must not import the world that stands on it. The footage package does not import this
+module either, so trial workers that only fly over footage never load the catalog, download and ingest code.
+"""
 
 from __future__ import annotations
 

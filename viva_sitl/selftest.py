@@ -1,10 +1,10 @@
 """A minimal vehicle for the MAVLink endpoint: a Vehicle (real Autopilot + EAV dynamics) paced on the asyncio loop.
 
-Used by the protocol tests (tests/mav_client.py) and by bench/bench_mavlink.py (as
-`python -m viva_sitl.mavlink.selftest`); the production vehicle is viva_sitl.app.SitlApp (footage, camera, video).
+A small app beside app.py (it builds a Vehicle and an endpoint, so it sits above both, not inside mavlink/). Used by the protocol tests (tests/mav_client.py) and by bench/bench_mavlink.py (as
+`python -m viva_sitl.selftest`); the production vehicle is viva_sitl.app.SitlApp (footage, camera, video).
 Nothing is rendered here: the geofence is open, the camera (`--camera-dir`) saves a small synthetic image per capture.
 
-    python -m viva_sitl.mavlink.selftest --instance 0 [--speed 1] [--duration 60] [--stats-file s.json]
+    python -m viva_sitl.selftest --instance 0 [--speed 1] [--duration 60] [--stats-file s.json]
 
 prints one JSON line `{"ready": ..., "api": [host, port], "gcs": [host, port], "sysid": N}` when listening, and on
 SIGINT/SIGTERM or after --duration a final JSON line with the endpoint stats and the process CPU time.
@@ -31,7 +31,8 @@ from viva_sitl.config import SimConfig
 from viva_sitl.dynamics import EavState
 from viva_sitl.geo import GeoOrigin
 from viva_sitl.mavlink.camera_link import CameraInfo, CameraLink, CaptureResult, VideoStreamSpec
-from viva_sitl.mavlink.endpoint import MavlinkConfig, MavlinkEndpoint
+from viva_sitl.mavlink.config import MavlinkConfig
+from viva_sitl.mavlink.endpoint import MavlinkEndpoint
 from viva_sitl.vehicle import Vehicle
 
 
@@ -127,9 +128,7 @@ class SelftestVehicle:
 
 
 def _parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(
-        prog="python -m viva_sitl.mavlink.selftest", description=__doc__.split("\n")[0]
-    )
+    p = argparse.ArgumentParser(prog="python -m viva_sitl.selftest", description=__doc__.split("\n")[0])
     p.add_argument("--instance", type=int, default=0)
     p.add_argument("--listen", default="127.0.0.1")
     p.add_argument("--api-remote-port", type=int, help="default 14540+instance; 0 = answer only who talks")
