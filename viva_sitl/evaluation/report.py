@@ -24,7 +24,7 @@ from viva_sitl.evaluation.scoring import COLUMNS, OLDER_SCHEMAS, SCHEMA
 from viva_sitl.evaluation.stats import aggregate, paired
 
 if TYPE_CHECKING:
-    from viva_sitl.evaluation.campaign import Campaign
+    from viva_sitl.evaluation.results import Campaign
 
 Row = dict[str, Any]
 
