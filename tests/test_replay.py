@@ -129,7 +129,7 @@ def test_bad_run_directories_are_one_line_errors(tmp_path: Path) -> None:
         load_recording(tmp_path / "missing")
     empty = tmp_path / "empty"
     empty.mkdir()
-    with pytest.raises(ReplayError, match="neither trajectory.csv nor telemetry.tlog"):
+    with pytest.raises(ReplayError, match="none of trajectory.csv, telemetry.tlog, trial_trajectory.csv"):
         load_recording(empty)
     (empty / "trajectory.csv").write_text("not,a,trajectory\n1,2,3\n")
     out = subprocess.run([sys.executable, "-m", "viva_sitl", "replay", str(empty)], capture_output=True,

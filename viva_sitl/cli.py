@@ -219,6 +219,12 @@ def _cmd_render(args: argparse.Namespace) -> int:
     from viva_sitl.dynamics import EavState
     from viva_sitl.sim import Simulator
 
+    out = Path(args.output)
+    if not cv2.haveImageWriter(str(out)):  # before rendering (cv2.imwrite would raise on it afterwards)
+        what = f"extension {out.suffix!r}" if out.suffix else "a name without an extension"
+        print(f"viva-sitl render: cannot write {out}: no image format for {what} (use .png or .jpg)",
+              file=sys.stderr)  # fmt: skip
+        return 2
     cfg = SimConfig.load(args.config)
     scale = {"footage_alt_m": args.footage_alt, "footage_hfov_deg": args.footage_hfov,
              "footage_gsd_m_per_px": args.footage_gsd}  # fmt: skip
@@ -231,8 +237,11 @@ def _cmd_render(args: argparse.Namespace) -> int:
         )  # fmt: skip
         state = dataclasses.replace(state, time_s=args.time)
         frame = sim.render(state)
-    out = Path(args.output)
-    if not cv2.imwrite(str(out), frame.image_bgr):
+    try:
+        ok = cv2.imwrite(str(out), frame.image_bgr)
+    except cv2.error:
+        ok = False
+    if not ok:
         print(
             f"viva-sitl render: cannot write {out} (unknown extension or unwritable directory)",
             file=sys.stderr,
