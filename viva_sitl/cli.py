@@ -161,11 +161,15 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--no-dashboard", action="store_true", help="do not serve the web dashboard")
 
     replay = sub.add_parser(
-        "replay", help="replay a recorded run (trajectory.csv or telemetry.tlog) in the web dashboard"
+        "replay",
+        help="replay a recorded run (trajectory.csv, telemetry.tlog or a trial's trial_trajectory.csv) in the web "
+        "dashboard",
     )
     replay.add_argument(
-        "run_dir", metavar="RUN_DIR", help="the run directory of a `viva-sitl run` (--run-dir)"
-    )
+        "run_dir", metavar="RUN_DIR",
+        help="the run directory of a `viva-sitl run` (--run-dir), or a trial folder of `viva-sitl trials run` "
+        "(OUT/trials/NNNN)",
+    )  # fmt: skip
     replay.add_argument("--footage", help="footage to replay over (default: the one run.json names)")
     replay.add_argument("--listen", help="address to bind (default 127.0.0.1)")
     replay.add_argument(
