@@ -8,8 +8,9 @@ parent always knows which trial a worker runs; a worker past the trial's wall li
 processes its trial started; then SIGKILL) and that trial fails with end = wall_timeout, the others go on.
 "ray": one Ray task per trial (`ray.init(address)`; a task past the wall limit is cancelled).
 
-Each finished trial is written at once to OUT/trials/NNNN/result.json (next to its logs); Ctrl-C keeps them and
-`--resume` runs only the trials whose result is missing (or was drawn from a different scenario). Results do not
+Each finished trial is written at once to OUT/trials/NNNN/result.json (next to its logs, results.py); Ctrl-C keeps
+them and `--resume` runs only the trials whose result is missing or an infrastructure error (an OUT that holds
+another run is refused: results.check_out_dir). Results do not
 depend on the backend or the job count: every trial is a pure function of (spec, scenario, pilot).
 """
 

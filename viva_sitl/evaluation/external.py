@@ -24,7 +24,9 @@ values are in its environment:
 
 The vehicle process ends the trial itself (touchdown + disarm, crash, leaving the footage, timeout), writes the
 logs and prints `viva-sitl trial: {...}`; the pilot then gets PILOT_EXIT_GRACE_S to exit on its own (the vehicle
-still answers), then both are stopped. Every process runs in its own process group and is ended (SIGINT, SIGTERM, then
+still answers), then both are stopped. A pilot that exits with a non-zero code before that ends its trial at once
+as pilot_error with its last stderr lines (one that exits with 0 leaves the vehicle to end it). The pilot's stdout
+and stderr go to pilot.log as printed (bytes: anything is fine). Every process runs in its own process group and is ended (SIGINT, SIGTERM, then
 SIGKILL of the group) on every exit path, including Ctrl-C and the trial's wall limit; on Linux they also get
 PR_SET_PDEATHSIG, so they die with the worker even if it is killed outright.
 """
