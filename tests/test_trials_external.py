@@ -142,9 +142,13 @@ def test_sitl_scenario_flag_rejects_a_bad_file(tmp_path: Path) -> None:
 
 # ----------------------------------------------------------------------- Ctrl-C, resume, hung pilots (issue 8 §4)
 
-LANDING_PILOT = PYMAVLINK_PILOT.replace(
-    'if scenario["index"] == 0:\n    raise SystemExit("my pilot crashed: no camera")\n', ""
-).replace('if scenario["index"] == 1:\n    time.sleep(3600)\n', "")
+_MISBEHAVIOUR = PYMAVLINK_PILOT[
+    PYMAVLINK_PILOT.index('if scenario["index"] == 0:') : PYMAVLINK_PILOT.index(
+        "m = mavutil.mavlink_connection"
+    )
+]
+LANDING_PILOT = PYMAVLINK_PILOT.replace(_MISBEHAVIOUR, "")
+assert "index" not in LANDING_PILOT.split("scenario = json.load")[1].split("m = mavutil")[0]
 
 # connects, keeps the link alive, never lands: only a limit can end its trial
 NEVER_LANDS_PILOT = r"""
