@@ -124,12 +124,56 @@ def test_replay_falls_back_to_the_tlog(run_dir: Path, tmp_path: Path) -> None:
     assert first.mode == "AUTO_LOITER" and first.landed_state == "ON_GROUND" and first.battery_pct == 100.0
 
 
+def test_replay_opens_an_inprocess_trial_folder_on_its_footage_clock(tmp_path: Path) -> None:
+    """`trials run` of an in-process pilot leaves trial_trajectory.csv and scenario.json (no run.json, no
+    trajectory.csv): the folder replays from them, over the scenario's footage, with the footage frames the trial saw
+    (its footage clock started at the scenario's footage_time_s)."""
+    from viva_sitl.dashboard.replay import ReplayApp
+    from viva_sitl.evaluation.campaign import run_campaign
+    from viva_sitl.evaluation.spec import spec_from_dict
+
+    spec = spec_from_dict(
+        {"trials": {"name": "replay", "n": 1, "seed": 2, "timeout_s": 30.0},
+         "scenario": {"footage": "synthetic", "start": "air", "north_m": [-20.0, 20.0], "east_m": [-20.0, 20.0],
+                      "altitude_m": 8.0, "footage_time_s": [10.0, 20.0], "land_at_s": 0.5}},
+        "replay",
+    )  # fmt: skip
+    camp = run_campaign(spec, "descend", tmp_path, jobs=1, progress=False)
+    (row,) = camp.ordered_rows()
+    assert row["end"] == "landed", row
+    tdir = tmp_path / "trials" / "0000"
+    assert not (tdir / "trajectory.csv").exists() and not (tdir / "run.json").exists()
+    rec = load_recording(tdir)
+    sc = camp.scenarios[0]
+    assert rec.source == "trial" and rec.footage_offset_s == sc.footage_time_s >= 10.0
+    assert rec.config.footage == "synthetic" and rec.config.seed == sc.seed
+    first, last = rec.samples[0], rec.samples[-1]
+    assert -first.pos_ned_m[2] == pytest.approx(8.0, abs=0.05) and first.armed
+    assert last.landed_state == "ON_GROUND" and not last.armed
+    assert (first.pos_ned_m[0], first.pos_ned_m[1]) == pytest.approx((sc.north_m, sc.east_m), abs=0.01)
+    app = ReplayApp(rec)
+    try:
+        mid = rec.at((rec.start_s + rec.end_s) / 2)
+        frame = app.render_at(mid)
+        with open_footage("synthetic") as src:
+            assert (
+                frame.meta.footage_frame_index == src.frame_index_at(mid.sim_time_s + sc.footage_time_s) > 0
+            )
+    finally:
+        app.close()
+    # and from the command line: the folder serves (it was refused before: no trajectory.csv)
+    r = subprocess.run([sys.executable, "-m", "viva_sitl", "replay", str(tdir), "--duration", "1",
+                        "--dashboard-port", str(free_tcp_port())], capture_output=True, text=True, timeout=120,
+                       cwd=REPO)  # fmt: skip
+    assert r.returncode == 0 and "Traceback" not in r.stderr, r.stdout + r.stderr
+
+
 def test_bad_run_directories_are_one_line_errors(tmp_path: Path) -> None:
     with pytest.raises(ReplayError, match="no such run directory"):
         load_recording(tmp_path / "missing")
     empty = tmp_path / "empty"
     empty.mkdir()
-    with pytest.raises(ReplayError, match="neither trajectory.csv nor telemetry.tlog"):
+    with pytest.raises(ReplayError, match="none of trajectory.csv, telemetry.tlog, trial_trajectory.csv"):
         load_recording(empty)
     (empty / "trajectory.csv").write_text("not,a,trajectory\n1,2,3\n")
     out = subprocess.run([sys.executable, "-m", "viva_sitl", "replay", str(empty)], capture_output=True,

@@ -147,6 +147,11 @@ def test_cli_errors_are_one_clear_line(tmp_path: Path) -> None:
     assert r.returncode == 2 and "viva-sitl:" in r.stderr and "Traceback" not in r.stderr
     r = _cli("render", "--pose", "0,0,nan,0,0,0", "-o", str(tmp_path / "x.png"))
     assert r.returncode == 2 and "--pose" in r.stderr
+    r = _cli("render", "--pose", "0,0,50,0,0,0", "-o", str(tmp_path / "view"))  # no extension: no format
+    assert r.returncode == 2 and r.stderr.strip().splitlines() == [
+        f"viva-sitl render: cannot write {tmp_path / 'view'}: no image format for a name without an extension "
+        "(use .png or .jpg)"
+    ], r.stderr
     bad = tmp_path / "bad.toml"
     bad.write_text("[camera]\nwidth_px = -5\n")
     r = _cli("run", "--config", str(bad), "--no-video", "--duration", "1")

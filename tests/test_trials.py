@@ -422,18 +422,106 @@ def test_cli_interrupt_keeps_finished_trials_and_resume_completes(tmp_path: Path
     assert doc2["complete"] is True and [x["trial"] for x in doc2["rows"]] == [0, 1, 2, 3]
     for k, row in kept.items():  # finished trials were kept as they were, not run again
         assert doc2["rows"][k] == row
-    # resuming with a smaller --n reports the first 2, keeps the other 2 on disk and says so
-    r = subprocess.run([*cmd, "--resume", "--n", "2"], cwd=REPO, capture_output=True, text=True, timeout=300)
+    # OUT holds a run now: the same command again, or --resume with another seed / n, is refused (one line)
+    # and nothing is overwritten
+    before = (out / "results.json").read_text()
+    for more, needle in (
+        ([], f"{out} holds this run already (4 of 4 trials): --resume completes it, --force runs it again"),
+        (["--resume", "--seed", "5"], f"--resume: {out} holds a different run (seed 3 there, 5 here): --force "
+                                      "replaces it, or give this run its own -o"),
+        (["--resume", "--n", "2"], "holds a different run (n 4 there, 2 here)"),
+    ):  # fmt: skip
+        r = subprocess.run([*cmd, *more], cwd=REPO, capture_output=True, text=True, timeout=120)
+        err = r.stderr.strip()
+        assert r.returncode == 2 and len(err.splitlines()) == 1 and needle in err, (more, err)
+    assert (out / "results.json").read_text() == before
+    # --force replaces it: what ran (--n 2 --seed 4) is what results.json and the report say; the old trials go
+    r = subprocess.run([*cmd, "--force", "--n", "2", "--seed", "4"], cwd=REPO, capture_output=True, text=True,
+                       timeout=300)  # fmt: skip
     assert r.returncode == 0, r.stderr
-    assert [x["trial"] for x in json.loads((out / "results.json").read_text())["rows"]] == [0, 1]
+    doc3 = json.loads((out / "results.json").read_text())
+    assert [x["trial"] for x in doc3["rows"]] == [0, 1] and sorted(os.listdir(out / "trials")) == [
+        "0000",
+        "0001",
+    ]
+    assert doc3["spec"]["n"] == 2 and doc3["spec"]["seed"] == 4 and doc3["trials_total"] == 2
+    run = doc3["run"]
+    assert {k: run[k] for k in ("seed", "n", "pilot", "pilot_kind", "timing", "speed")} == {
+        "seed": 4,
+        "n": 2,
+        "pilot": "descend",
+        "pilot_kind": "in-process",
+        "timing": "realtime",
+        "speed": 4.0,
+    }
     assert (
-        f"note: 2 finished trial(s) not in this run's scenarios (trials 2-3) stay in {out / 'trials'}"
-        in r.stdout
+        run["spec_hash"] == doc2["run"]["spec_hash"] and len(run["spec_hash"]) == 64
+    )  # same spec, other seed
+    assert run["versions"]["viva-sitl"] and run["versions"]["pymavlink"] and run["versions"]["mavsdk"]
+    assert [s["seed"] for s in doc3["scenarios"]] != [s["seed"] for s in doc2["scenarios"][:2]]
+    page = (out / "report.html").read_text()
+    assert (
+        "; seed 4;" in page
+        and f"spec hash <code>{run['spec_hash'][:16]}</code>; seed 4; n 2; timing "
+        "realtime; speed 4.0; versions: viva-sitl"
+        in page
     )
-    assert json.loads((out / "trials" / "0003" / "result.json").read_text())["row"] == doc2["rows"][3]
     show = subprocess.run([sys.executable, "-m", "viva_sitl", "trials", "show", str(out), "--trial", "1"],
                           cwd=REPO, capture_output=True, text=True, timeout=60)  # fmt: skip
     assert show.returncode == 0 and "land_now" in show.stdout and "touchdown" in show.stdout
+
+
+# a pilot module in the user's current directory: trial 0's worker dies the first time (an infrastructure error:
+# the harness cannot tell it from a segfault in the simulator), and flies the next time
+DYING_PILOT = """
+import os
+from pathlib import Path
+
+from viva_sitl.evaluation.pilots import DescendPilot
+
+
+class DiesOnce(DescendPilot):
+    def reset(self, scenario, truth):
+        if scenario.index == 0 and not Path("died-once").exists():
+            Path("died-once").write_text("")
+            os._exit(3)
+        super().reset(scenario, truth)
+"""
+
+
+def test_infrastructure_errors_exit_3_stay_out_of_the_success_rate_and_resume_reruns_them(
+    tmp_path: Path,
+) -> None:
+    (tmp_path / "mypilot.py").write_text(DYING_PILOT)
+    spec_path = tmp_path / "spec.toml"
+    spec_path.write_text(
+        '[trials]\nname = "infra"\nn = 2\nseed = 3\ntimeout_s = 40.0\n[scenario]\nfootage = "synthetic"\n'
+        "north_m = [-30.0, 30.0]\neast_m = [-30.0, 30.0]\naltitude_m = 8.0\nland_at_s = 0.5\n"
+    )
+    # the installed `viva-sitl` script (not `python -m`, which puts the current directory on sys.path itself)
+    exe = Path(sys.executable).parent / "viva-sitl"
+    cmd = [str(exe), "trials", "run", str(spec_path), "--pilot", "mypilot:DiesOnce", "--jobs", "1", "-o", "out",
+           "--no-progress"]  # fmt: skip
+    r = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, timeout=300)
+    assert r.returncode == 3, r.stdout + r.stderr
+    assert (
+        "1 trial failed in the harness, not the pilot (worker_died 1: trial 0): left out of the success "
+        "rate and the scores; --resume runs them again" in r.stdout
+    )
+    doc = json.loads((tmp_path / "out" / "results.json").read_text())
+    r0, r1 = doc["rows"]
+    assert r0["end"] == "worker_died" and r0["success"] is None and r1["end"] == "landed"
+    agg = doc["aggregate"]
+    assert agg["infra_errors"] == {"n": 1, "trials": [0], "ends": {"worker_died": 1}}
+    assert agg["n"] == 1 and agg["success_judged"] == 1 and agg["landed_rate"] == 1.0
+    assert agg["ends"] == {"landed": 1, "worker_died": 1}
+    assert "id='infra'>1 trial failed in the harness" in (tmp_path / "out" / "report.html").read_text()
+    # --resume runs the infrastructure error again (the finished trial stays as it was)
+    r = subprocess.run([*cmd, "--resume"], cwd=tmp_path, capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stdout + r.stderr
+    doc2 = json.loads((tmp_path / "out" / "results.json").read_text())
+    assert [x["end"] for x in doc2["rows"]] == ["landed", "landed"] and doc2["rows"][1] == r1
+    assert doc2["aggregate"]["infra_errors"]["n"] == 0 and "failed in the harness" not in r.stdout
 
 
 class HoldPilot:

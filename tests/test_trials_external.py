@@ -17,22 +17,28 @@ from typing import Any
 
 import pytest
 
+from viva_sitl.dashboard.replay import load_recording
 from viva_sitl.evaluation.campaign import run_campaign
 from viva_sitl.evaluation.spec import spec_from_dict
 
 REPO = Path(__file__).resolve().parents[1]
 pytestmark = pytest.mark.e2e
 
-# index 0 crashes at once, index 1 hangs, the others land when told to ("Emergency: land now" STATUSTEXT)
+# index 0 crashes at once (a package it needs is missing), index 1 hangs, the others land when told to ("Emergency:
+# land now" STATUSTEXT); index 2 first prints bytes that are not UTF-8, more than a pipe holds, on both streams
 PYMAVLINK_PILOT = r"""
 import json, os, sys, time
 os.environ["MAVLINK20"] = "1"
 from pymavlink import mavutil
 scenario = json.load(open(os.environ["VIVA_SITL_SCENARIO"]))
 if scenario["index"] == 0:
-    raise SystemExit("my pilot crashed: no camera")
+    import viva_no_such_package_for_my_camera
 if scenario["index"] == 1:
     time.sleep(3600)
+if scenario["index"] == 2:
+    for stream in (sys.stdout.buffer, sys.stderr.buffer):
+        stream.write(b"\xff\xfe\x80 not utf-8\n" * 5000)
+        stream.flush()
 m = mavutil.mavlink_connection(sys.argv[1], source_system=255)
 hb = m.wait_heartbeat(timeout=30)
 last = 0.0
@@ -80,6 +86,12 @@ def test_mavsdk_script_unchanged_as_pilot(tmp_path: Path) -> None:
         assert "RESULT" in (tdir / "pilot.log").read_text()  # the script ran to its end
         kinds = [json.loads(x)["kind"] for x in (tdir / "events.jsonl").read_text().splitlines()]
         assert "armed" in kinds and "touchdown" in kinds
+        rec = load_recording(
+            tdir
+        )  # the trial folder opens in `viva-sitl replay`, on the trial's footage clock
+        sc = json.loads((tdir / "scenario.json").read_text())
+        assert rec.source == "trajectory" and rec.footage_offset_s == sc["footage_time_s"]
+        assert rec.config.footage == "synthetic" and max(-s.pos_ned_m[2] for s in rec.samples) > 5.0
         tlogs = list(tdir.glob("*.tlog"))
         if tlogs:  # `viva-sitl run` records a .tlog in its run directory (when that helper's work is merged)
             assert tlogs[0].stat().st_size > 1000
@@ -99,15 +111,24 @@ def test_crashing_hanging_and_landing_external_pilots(tmp_path: Path) -> None:
         spec, f"{{python}} {script} {{pymavlink_url}}", tmp_path / "out", jobs=2, progress=False
     )
     r0, r1, r2 = camp.ordered_rows()
-    assert (
-        r0["end"] == "timeout" and "pilot exited with code 1: my pilot crashed: no camera" in r0["end_detail"]
-    )
+    # the crash ends its trial at once (not at the 25 s timeout) with the pilot's last stderr lines
+    assert r0["end"] == "pilot_error" and r0["end_t_s"] < 12.0, r0
+    assert r0["end_detail"].startswith("pilot exited with code 1 before the trial ended: ")
+    assert "ModuleNotFoundError: No module named 'viva_no_such_package_for_my_camera'" in r0["end_detail"]
     assert (
         r1["end"] == "timeout" and "pilot still running at the end of the trial (stopped" in r1["end_detail"]
     )
     assert r2["end"] == "landed" and r2["time_to_land_s"] > 0, r2
-    assert "told to land" in (tmp_path / "out" / "trials" / "0002" / "pilot.log").read_text()
+    log2 = (tmp_path / "out" / "trials" / "0002" / "pilot.log").read_bytes()
+    assert b"told to land" in log2 and log2.count(b"\xff\xfe\x80 not utf-8\n") == 10000  # kept as printed
     assert _leftovers(str(tmp_path)) == []
+    # a pilot script that is not there: pilot_error at once, with what Python said
+    camp = run_campaign(spec, f"{{python}} {tmp_path / 'no_such_pilot.py'}", tmp_path / "missing", n=1, jobs=1,
+                        progress=False)  # fmt: skip
+    (row,) = camp.ordered_rows()
+    assert row["end"] == "pilot_error" and row["end_t_s"] < 12.0, row
+    assert "code 2 before the trial ended" in row["end_detail"] and "can't open file" in row["end_detail"]
+    assert not camp.infra_errors()  # the pilot's failure, not the harness's
 
 
 def test_sitl_scenario_flag_rejects_a_bad_file(tmp_path: Path) -> None:
@@ -121,9 +142,13 @@ def test_sitl_scenario_flag_rejects_a_bad_file(tmp_path: Path) -> None:
 
 # ----------------------------------------------------------------------- Ctrl-C, resume, hung pilots (issue 8 §4)
 
-LANDING_PILOT = PYMAVLINK_PILOT.replace(
-    'if scenario["index"] == 0:\n    raise SystemExit("my pilot crashed: no camera")\n', ""
-).replace('if scenario["index"] == 1:\n    time.sleep(3600)\n', "")
+_MISBEHAVIOUR = PYMAVLINK_PILOT[
+    PYMAVLINK_PILOT.index('if scenario["index"] == 0:') : PYMAVLINK_PILOT.index(
+        "m = mavutil.mavlink_connection"
+    )
+]
+LANDING_PILOT = PYMAVLINK_PILOT.replace(_MISBEHAVIOUR, "")
+assert "index" not in LANDING_PILOT.split("scenario = json.load")[1].split("m = mavutil")[0]
 
 # connects, keeps the link alive, never lands: only a limit can end its trial
 NEVER_LANDS_PILOT = r"""

@@ -181,8 +181,8 @@ def test_report_and_compare_show_object_distances_as_in_results_json(
     before = (b_dir / "results.json").read_text()
     r = _cli("trials", "run", str(SPEC), "--pilot", "descend", "--n", "2", "-o", str(b_dir), timeout=120)
     assert r.returncode == 2 and r.stderr.strip().splitlines() == [
-        f"viva-sitl trials: {b_dir} holds the results of pilot 'oracle' on spec 'synthetic-emergency': give this "
-        "run (pilot 'descend', spec 'synthetic-emergency') its own -o, or delete that directory"
+        f"viva-sitl trials: {b_dir} holds the results of pilot 'oracle' on spec 'synthetic-emergency' (seed 0, n "
+        "2; 2 of 2 trials) (pilot 'oracle' there, 'descend' here): --force replaces it, or give this run its own -o"
     ], r.stderr
     r = _cli("trials", "fly", str(SPEC), "--trial", "0", "-o", str(b_dir), timeout=120)
     assert r.returncode == 2 and "holds the results of pilot 'oracle'" in r.stderr and "ready" not in r.stdout
@@ -265,6 +265,11 @@ def test_bad_paths_and_pilots_are_one_line(tmp_path: Path) -> None:
     assert not out.exists()  # refused before any trial ran
     one_line(_cli("trials", "run", str(SPEC), "--pilot", "./nope.sh --x", "-o", str(out), timeout=60),
              "'./nope.sh' not an executable file")  # fmt: skip
+    for n in ("-1", "0"):  # one wording for every count below 1
+        r = _cli("trials", "run", str(SPEC), "--n", n, "-o", str(out), timeout=60)
+        assert r.returncode == 2 and f"argument --n: expected an integer >= 1, got '{n}'" in r.stderr, (
+            r.stderr
+        )
     one_line(_cli("trials", "compare", str(tmp_path), str(tmp_path), timeout=60), "no results")
     one_line(_cli("trials", "report", str(tmp_path / "none"), timeout=60), "no results")
     (tmp_path / "results.json").write_text("{")
@@ -291,13 +296,20 @@ def test_a_trial_without_flight_log_reports_unavailable_not_zero() -> None:
     spec = load_spec(SPEC)
     sc = draw_scenarios(spec, 1)[0]
     row = failed_row(spec, sc, "worker_died", "worker died (exit code -9)")
-    assert row["end"] == "worker_died" and row["landed"] is False and row["success"] is False
+    # an infrastructure error judges nothing: success unknown, and the aggregate leaves it out (counted apart)
+    assert row["end"] == "worker_died" and row["landed"] is False and row["success"] is None
     for key in ("end_t_s", "flight_time_s", "path_length_m", "energy_wh", "time_outside_footage_s", "failsafes",
                 "touchdown_speed_m_s", "min_dist_object_m", "risk_level"):  # fmt: skip
         assert row[key] is None, key
     flown = {**row, "end": "landed", "path_length_m": 20.0, "flight_time_s": 30.0, "energy_wh": 1.0}
     agg = aggregate([row, flown], "x")
     assert agg["scores"]["path_length_m"]["n"] == 1 and agg["scores"]["path_length_m"]["mean"] == 20.0
+    from viva_sitl.evaluation.report import infra_aggregate
+
+    flown.update(success=False, landed=True)
+    agg = infra_aggregate([row, flown], "x")
+    assert agg["success_judged"] == 1 and agg["success_rate"] == 0.0 and agg["landed_rate"] == 1.0
+    assert agg["ends"] == {"landed": 1, "worker_died": 1} and agg["infra_errors"]["trials"] == [0]
     assert agg["scores"]["flight_time_s"]["mean"] == 30.0
 
 

@@ -114,11 +114,15 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--no-dashboard", action="store_true", help="do not serve the web dashboard")
 
     replay = sub.add_parser(
-        "replay", help="replay a recorded run (trajectory.csv or telemetry.tlog) in the web dashboard"
+        "replay",
+        help="replay a recorded run (trajectory.csv, telemetry.tlog or a trial's trial_trajectory.csv) in the web "
+        "dashboard",
     )
     replay.add_argument(
-        "run_dir", metavar="RUN_DIR", help="the run directory of a `viva-sitl run` (--run-dir)"
-    )
+        "run_dir", metavar="RUN_DIR",
+        help="the run directory of a `viva-sitl run` (--run-dir), or a trial folder of `viva-sitl trials run` "
+        "(OUT/trials/NNNN)",
+    )  # fmt: skip
     replay.add_argument("--footage", help="footage to replay over (default: the one run.json names)")
     replay.add_argument("--listen", help="address to bind (default 127.0.0.1)")
     replay.add_argument(
@@ -172,6 +176,12 @@ def _cmd_render(args: argparse.Namespace) -> int:
     from viva_sitl.dynamics import EavState
     from viva_sitl.sim import Simulator
 
+    out = Path(args.output)
+    if not cv2.haveImageWriter(str(out)):  # before rendering (cv2.imwrite would raise on it afterwards)
+        what = f"extension {out.suffix!r}" if out.suffix else "a name without an extension"
+        print(f"viva-sitl render: cannot write {out}: no image format for {what} (use .png or .jpg)",
+              file=sys.stderr)  # fmt: skip
+        return 2
     cfg = SimConfig.load(args.config)
     scale = {"footage_alt_m": args.footage_alt, "footage_hfov_deg": args.footage_hfov,
              "footage_gsd_m_per_px": args.footage_gsd}  # fmt: skip
@@ -184,8 +194,11 @@ def _cmd_render(args: argparse.Namespace) -> int:
         )  # fmt: skip
         state = dataclasses.replace(state, time_s=args.time)
         frame = sim.render(state)
-    out = Path(args.output)
-    if not cv2.imwrite(str(out), frame.image_bgr):
+    try:
+        ok = cv2.imwrite(str(out), frame.image_bgr)
+    except cv2.error:
+        ok = False
+    if not ok:
         print(
             f"viva-sitl render: cannot write {out} (unknown extension or unwritable directory)",
             file=sys.stderr,

@@ -86,7 +86,10 @@ def nonneg_int(text: str) -> int:
 
 
 def pos_int(text: str) -> int:
-    v = nonneg_int(text)
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
     if v < 1:
         raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {text!r}")
     return v

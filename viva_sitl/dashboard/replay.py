@@ -1,9 +1,11 @@
 """`viva-sitl replay RUN_DIR`: a recorded run in the dashboard page, with a time slider and play / pause.
 
-The recording is the run directory's trajectory.csv (recording.py) or, without one, its telemetry.tlog (read with
-pymavlink: LOCAL_POSITION_NED, ATTITUDE, HEARTBEAT, EXTENDED_SYS_STATE, SYS_STATUS). run.json names the footage
-and the config; the VAC view at each moment is re-rendered from the recorded pose with the same Simulator (same
-footage, camera and seed as the run). `ReplayApp` stands where SitlApp stands for the Dashboard (the same server,
+The recording is the run directory's trajectory.csv (recording.py), or without one its telemetry.tlog (read with
+pymavlink: LOCAL_POSITION_NED, ATTITUDE, HEARTBEAT, EXTENDED_SYS_STATE, SYS_STATUS), or a trial's
+trial_trajectory.csv (`trials run` of an in-process pilot: trials/NNNN/ has no run.json either). run.json names the
+footage and the config, or a trial's scenario.json does (footage, seed, parameters, and the footage clock at the
+start: the replay shows the footage frames the trial saw); the VAC view at each moment is re-rendered from the
+recorded pose with the same Simulator (same footage, camera and seed as the run). `ReplayApp` stands where SitlApp stands for the Dashboard (the same server,
 overview, HUD and layers); flying is disabled (no autopilot: commands and sticks are refused with a reason).
 
 Page messages (JSON on /ws): {"t": "replay", "action": "seek", "time_s": T} | {"action": "play"} |
@@ -15,6 +17,7 @@ from __future__ import annotations
 import asyncio
 import bisect
 import contextlib
+import csv
 import math
 import threading
 import time
@@ -45,9 +48,10 @@ class ReplayError(ValueError):
 class Recording:
     samples: list[Sample]
     config: SimConfig
-    source: str  # "trajectory" | "tlog"
+    source: str  # "trajectory" | "tlog" | "trial"
     path: Path
     times_s: list[float] = field(default_factory=list)
+    footage_offset_s: float = 0.0  # footage time = sim time + this (a trial's scenario footage_time_s)
 
     def __post_init__(self) -> None:
         self.times_s = [s.sim_time_s for s in self.samples]
@@ -134,19 +138,63 @@ def _backfill(samples: list[Sample]) -> list[Sample]:
     return out
 
 
+def _samples_from_trial_log(path: Path) -> list[Sample]:
+    """A trial's own trajectory (evaluation/monitor.py TRAJECTORY_COLUMNS) as replay samples."""
+    out: list[Sample] = []
+    try:
+        with path.open(newline="") as f:
+            for row in csv.DictReader(f):
+                g = float
+                out.append(Sample(
+                    g(row["sim_time_s"]), (g(row["north_m"]), g(row["east_m"]), g(row["down_m"])),
+                    (g(row["vn_m_s"]), g(row["ve_m_s"]), g(row["vd_m_s"])),
+                    (g(row["roll_rad"]), g(row["pitch_rad"]), g(row["yaw_rad"])), row["mode"],
+                    row["armed"] in ("1", "1.0"), "ON_GROUND" if row["landed"] in ("1", "1.0") else "IN_AIR", -1,
+                    100.0 * g(row["battery_remaining"]), math.nan,
+                ))  # fmt: skip
+    except OSError as exc:
+        raise ReplayError(f"cannot read {path}: {exc.strerror or exc}") from None
+    except (KeyError, ValueError, TypeError):
+        raise ReplayError(f"{path}: not a trial trajectory (trial_trajectory.csv columns)") from None
+    return out
+
+
+def _scenario_of(run_dir: Path) -> Any:
+    """The trial's scenario.json (a `trials run` trial folder), or None."""
+    from viva_sitl.config import ConfigError
+    from viva_sitl.evaluation.spec import Scenario
+
+    path = run_dir / "scenario.json"
+    if not path.is_file():
+        return None
+    try:
+        return Scenario.read(path)
+    except (ConfigError, ValueError, KeyError, TypeError) as exc:
+        raise ReplayError(f"{path}: {exc}") from None
+
+
 def load_recording(run_dir: Path, footage: str | None = None) -> Recording:
-    """The recording of a run directory; ReplayError with a one-line reason when there is none."""
+    """The recording of a run directory (or a trial folder); ReplayError with a one-line reason when there is
+    none."""
+    from viva_sitl.evaluation.monitor import TRIAL_TRAJECTORY_FILE
+
     if not run_dir.is_dir():
         raise ReplayError(f"{run_dir}: no such run directory")
     try:
         info = read_run_info(run_dir)
     except ValueError as exc:
         raise ReplayError(str(exc)) from None
+    scenario = _scenario_of(run_dir)
     if info is not None:
         try:
             config = SimConfig.from_dict(dict(info.get("config") or {}), str(run_dir / "run.json"))
         except ValueError as exc:
             raise ReplayError(str(exc)) from None
+    elif scenario is not None:  # an in-process trial: the vehicle the runner made from its scenario
+        config = SimConfig(
+            footage=scenario.footage, seed=scenario.seed, params=scenario.all_params(),
+            initial_pos_ned_m=scenario.start_pos_ned_m, initial_yaw_deg=scenario.yaw_deg,
+        )  # fmt: skip
     else:
         config = SimConfig()
     if footage:
@@ -155,6 +203,7 @@ def load_recording(run_dir: Path, footage: str | None = None) -> Recording:
         config = dataclasses.replace(config, footage=footage)
     traj = run_dir / TRAJECTORY_FILE
     tlog = run_dir / TLOG_FILE
+    trial = run_dir / TRIAL_TRAJECTORY_FILE
     if traj.is_file():
         try:
             samples, source, path = read_trajectory(traj), "trajectory", traj
@@ -162,13 +211,18 @@ def load_recording(run_dir: Path, footage: str | None = None) -> Recording:
             raise ReplayError(str(exc)) from None
     elif tlog.is_file():
         samples, source, path = _samples_from_tlog(tlog), "tlog", tlog
+    elif trial.is_file():
+        samples, source, path = _samples_from_trial_log(trial), "trial", trial
     else:
         raise ReplayError(
-            f"{run_dir}: neither {TRAJECTORY_FILE} nor {TLOG_FILE} (not a viva-sitl run directory?)"
+            f"{run_dir}: none of {TRAJECTORY_FILE}, {TLOG_FILE}, {TRIAL_TRAJECTORY_FILE} (not a viva-sitl run "
+            "directory or trial folder?)"
         )
     if not samples:
         raise ReplayError(f"{path}: no samples")
-    return Recording(samples, config, source, path)
+    # a trial's footage clock starts at its scenario's footage_time_s (both trial kinds start the sim at 0)
+    offset = float(scenario.footage_time_s) if scenario is not None else 0.0
+    return Recording(samples, config, source, path, footage_offset_s=offset)
 
 
 @dataclass
@@ -262,6 +316,7 @@ class ReplayApp:
         self.recording = recording
         self.config = recording.config
         self.sim = Simulator(recording.config)
+        self.sim.footage_offset_s = recording.footage_offset_s
         self.time_s = recording.start_s
         self.sample = recording.at(self.time_s)
         self.autopilot = ReplayAutopilot(self)

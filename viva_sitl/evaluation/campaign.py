@@ -8,64 +8,46 @@ parent always knows which trial a worker runs; a worker past the trial's wall li
 processes its trial started; then SIGKILL) and that trial fails with end = wall_timeout, the others go on.
 "ray": one Ray task per trial (`ray.init(address)`; a task past the wall limit is cancelled).
 
-Each finished trial is written at once to OUT/trials/NNNN/result.json (next to its logs); Ctrl-C keeps them and
-`--resume` runs only the trials whose result is missing (or was drawn from a different scenario). Results do not
+Each finished trial is written at once to OUT/trials/NNNN/result.json (next to its logs, results.py); Ctrl-C keeps
+them and `--resume` runs only the trials whose result is missing or an infrastructure error (an OUT that holds
+another run is refused: results.check_out_dir). Results do not
 depend on the backend or the job count: every trial is a pure function of (spec, scenario, pilot).
 """
 
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import json
 import multiprocessing as mp
 import os
 import signal
+import sys
 import threading
 import time
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from multiprocessing.connection import Connection
 from pathlib import Path
 from queue import Empty
 from typing import Any
 
 from viva_sitl.evaluation.pilots import is_inprocess, make_pilot
-from viva_sitl.evaluation.scoring import COLUMNS, SCHEMA, score_trial
+from viva_sitl.evaluation.results import (
+    INFRA_ENDS,
+    Campaign,
+    Row,
+    _save_row,
+    check_out_dir,
+    clear_results,
+    finished_trials,
+    load_finished,
+    mark_infra,
+    run_record,
+    trial_dir,
+)
+from viva_sitl.evaluation.scoring import COLUMNS, score_trial
 from viva_sitl.evaluation.spec import Scenario, TrialSpec, draw_scenarios
-
-Row = dict[str, Any]
-
-
-@dataclass
-class Campaign:
-    spec: TrialSpec
-    pilot: str
-    scenarios: list[Scenario]
-    out_dir: Path
-    rows: dict[int, Row] = field(default_factory=dict)
-    interrupted: bool = False
-    backend: str = "local"
-    jobs: int = 1
-
-    @property
-    def complete(self) -> bool:
-        return len(self.rows) == len(self.scenarios)
-
-    def ordered_rows(self) -> list[Row]:
-        return [self.rows[s.index] for s in self.scenarios if s.index in self.rows]
-
-
-def trial_dir(out_dir: Path, index: int) -> Path:
-    return out_dir / "trials" / f"{index:04d}"
-
-
-def finished_trials(out_dir: Path) -> list[int]:
-    """Indices of the trials with a result.json under OUT/trials (the folders trial_dir names), sorted."""
-    try:
-        dirs = list((out_dir / "trials").iterdir())
-    except OSError:
-        return []
-    return sorted(int(d.name) for d in dirs if d.name.isdigit() and (d / "result.json").is_file())
 
 
 def default_wall_limit_s(spec: TrialSpec, pilot: str) -> float:
@@ -102,7 +84,7 @@ def failed_row(spec: TrialSpec, scenario: Scenario, end: str, detail: str) -> Ro
     from viva_sitl.evaluation.monitor import TrialLog
 
     log = TrialLog(end=end, end_detail=detail)
-    row = score_trial(scenario, log, None, spec)
+    row = mark_infra(score_trial(scenario, log, None, spec))
     # no flight log: what the log would have measured is unavailable, not 0 (a 0 would pull the means down)
     for key in (
         "end_t_s",
@@ -288,28 +270,6 @@ def _by(todo: list[Scenario], idx: int) -> Scenario:
 # ----------------------------------------------------------------------------------------- campaign
 
 
-def load_finished(out_dir: Path, scenarios: list[Scenario], pilot: str) -> dict[int, Row]:
-    """Rows already on disk whose scenario and pilot match (for --resume)."""
-    out: dict[int, Row] = {}
-    for sc in scenarios:
-        d = trial_dir(out_dir, sc.index)
-        try:
-            res = json.loads((d / "result.json").read_text())
-        except (FileNotFoundError, json.JSONDecodeError):
-            continue
-        if res.get("scenario") == sc.to_dict() and res.get("row", {}).get("pilot") == pilot:
-            out[sc.index] = res["row"]
-    return out
-
-
-def _save_row(out_dir: Path, sc: Scenario, row: Row) -> None:
-    d = trial_dir(out_dir, sc.index)
-    d.mkdir(parents=True, exist_ok=True)
-    tmp = d / "result.json.tmp"
-    tmp.write_text(json.dumps({"schema": SCHEMA, "scenario": sc.to_dict(), "row": row}, indent=1))
-    os.replace(tmp, d / "result.json")  # atomic: an interrupted write never leaves half a result
-
-
 def _preload_report_modules() -> None:
     # only an early import: write_reports imports matplotlib (and says when it is missing) for itself
     with contextlib.suppress(Exception):
@@ -345,6 +305,7 @@ def run_campaign(
     backend: str = "local",
     address: str | None = None,
     resume: bool = False,
+    force: bool = False,
     only: list[int] | None = None,
     video: bool = False,
     progress: bool = True,
@@ -352,25 +313,33 @@ def run_campaign(
     on_row: Callable[[Row], None] | None = None,
 ) -> Campaign:
     """Run (or resume) a campaign and write results.json / results.csv / report.html to out_dir. Ctrl-C keeps the
-    finished trials (reports written for them) and re-raises KeyboardInterrupt after that."""
+    finished trials (reports written for them) and re-raises KeyboardInterrupt after that.
+
+    An out_dir that holds results is refused (ValueError, one line) unless `resume` (the same spec, seed, n, pilot
+    and timing: only the missing trials run) or `force` (what it held is removed first). n / seed override the
+    spec's; the campaign's spec (and results.json) says what was drawn."""
     from viva_sitl.evaluation.report import write_reports
     from viva_sitl.footage.tiles import check_tile_environment
 
     pilot = pilot or spec.pilot
     if is_inprocess(pilot):
+        _importable_cwd()
         make_pilot(pilot)  # a pilot that cannot be made fails here with one line, not once per trial
     check_tile_environment()  # so does a bad $VIVA_SITL_TILE_*, which every worker would read
     out = Path(out_dir)
-    refuse_other_run(out, spec.name, pilot)
-    out.mkdir(parents=True, exist_ok=True)
-    scenarios = draw_scenarios(spec, n, seed)
+    spec = dataclasses.replace(
+        spec, n=spec.n if n is None else n, seed=spec.seed if seed is None else seed, pilot=pilot
+    )
+    scenarios = draw_scenarios(spec)
     if only is not None:
-        if (out / "results.json").exists() and not resume:
-            raise ValueError(f"{out} holds a run already: give --trial its own output directory (-o)")
         bad = [k for k in only if not 0 <= k < len(scenarios)]
         if bad:
             raise ValueError(f"--trial {bad[0]}: no such trial (0..{len(scenarios) - 1})")
         scenarios = [scenarios[k] for k in only]
+    check_out_dir(out, run_record(spec, pilot), resume=resume, force=force)
+    out.mkdir(parents=True, exist_ok=True)
+    if force:
+        clear_results(out)
     jobs = max(1, jobs or os.cpu_count() or 1)
     camp = Campaign(spec, pilot, scenarios, out, backend=backend, jobs=jobs)
     if resume:
@@ -406,7 +375,7 @@ def run_campaign(
         for idx, row in gen:
             left -= 1
             preload_if_a_core_is_idle()
-            camp.rows[idx] = row
+            camp.rows[idx] = row = mark_infra(row)
             _save_row(out, by_index[idx], row)
             if on_row is not None:
                 on_row(row)
@@ -429,6 +398,14 @@ def run_campaign(
     return camp
 
 
+def _importable_cwd() -> None:
+    """`--pilot mymod:Cls` finds mymod.py in the current directory, as `python -m` would (the `viva-sitl` script's
+    sys.path starts at its own bin folder); spawned workers inherit the parent's sys.path."""
+    cwd = os.getcwd()
+    if "" not in sys.path and cwd not in sys.path:
+        sys.path.insert(0, cwd)
+
+
 def rows_equal(a: list[Row], b: list[Row]) -> bool:
     """Same results apart from wall time (what 'identical whatever the backend and job count' means)."""
     strip = [{k: v for k, v in r.items() if k != "wall_s"} for r in a]
@@ -438,6 +415,7 @@ def rows_equal(a: list[Row], b: list[Row]) -> bool:
 
 __all__ = [
     "COLUMNS",
+    "INFRA_ENDS",
     "Campaign",
     "finished_trials",
     "load_finished",

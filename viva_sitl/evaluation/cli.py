@@ -38,7 +38,16 @@ def build_parser() -> argparse.ArgumentParser:
     )
     r.add_argument("--backend", choices=["local", "ray"], default="local")
     r.add_argument("--address", help="Ray cluster address (with --backend ray; default: a local Ray)")
-    r.add_argument("--resume", action="store_true", help="keep finished trials in OUT, run the rest")
+    g = r.add_mutually_exclusive_group()
+    g.add_argument(
+        "--resume", action="store_true",
+        help="complete the run in OUT: keep its finished trials, run the rest (and its infrastructure errors); "
+        "refused unless OUT holds the same spec, seed, n, pilot and timing",
+    )  # fmt: skip
+    g.add_argument(
+        "--force", action="store_true",
+        help="replace what OUT holds (its results and trials/NNNN folders are removed first)",
+    )  # fmt: skip
     r.add_argument(
         "--trial", type=_nonneg_int, action="append", help="run only trial K (repeatable): reproduce it"
     )
@@ -100,6 +109,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _print_summary(doc: dict[str, Any]) -> None:
+    from viva_sitl.evaluation.report import infra_line
+
     agg = doc["aggregate"]
     print(f"{doc['spec']['name']} [{doc['pilot']}]: {doc['trials_done']}/{doc['trials_total']} trials"
           f"{'' if doc['complete'] else ' (incomplete: --resume completes the rest)'}")  # fmt: skip
@@ -107,9 +118,14 @@ def _print_summary(doc: dict[str, Any]) -> None:
         lo, hi = agg["success_rate_ci95_wilson"]
         print(f"  {agg['criterion']}: {agg['success']}/{agg['success_judged']} = {100 * agg['success_rate']:.1f} % "
               f"(95 % CI {100 * lo:.1f}-{100 * hi:.1f} %)")  # fmt: skip
+    elif agg.get("n") == 0 and doc["trials_done"]:
+        print(f"  {agg['criterion']}: unavailable (no trial flew)")
     else:
         print(f"  {agg['criterion']}: unavailable (no ground truth)")
     print("  ends: " + ", ".join(f"{k} {v}" for k, v in agg["ends"].items()))
+    infra = infra_line(agg)
+    if infra is not None:
+        print(f"  {infra}: left out of the success rate and the scores; --resume runs them again")
     for key in (
         "touchdown_speed_m_s",
         "min_dist_person_m",
@@ -207,7 +223,7 @@ def _run(args: argparse.Namespace) -> int:
     try:
         camp = run_campaign(
             spec, pilot, out, n=args.n, seed=args.seed, jobs=args.jobs, backend=args.backend,
-            address=args.address, resume=args.resume, only=args.trial, video=args.video,
+            address=args.address, resume=args.resume, force=args.force, only=args.trial, video=args.video,
             progress=not args.no_progress,
         )  # fmt: skip
     except KeyboardInterrupt:
@@ -223,9 +239,11 @@ def _run(args: argparse.Namespace) -> int:
     print(f"  report: {out / 'report.html'}  results: {out / 'results.csv'}, {out / 'results.json'}")
     ran = {s.index for s in camp.scenarios}
     beyond = [k for k in finished_trials(out) if k not in ran]
-    if beyond:  # e.g. --resume --n 2 after a run of 4: their results stay on disk, outside this report
+    if beyond:  # e.g. --resume --trial 2 in a run of 4: the others' results stay on disk, outside this report
         print(f"  note: {len(beyond)} finished trial(s) not in this run's scenarios ({_span(beyond)}) stay in "
-              f"{out / 'trials'}; not in this report (rerun with their --n / --seed to include them)")  # fmt: skip
+              f"{out / 'trials'}; not in this report")  # fmt: skip
+    if camp.infra_errors():  # the harness failed: not a result of the pilot, so not a success of the run
+        return 3
     return 0 if camp.complete else 1
 
 
@@ -244,12 +262,15 @@ def _fly(args: argparse.Namespace) -> int:
     from viva_sitl.evaluation.spec import load_spec
 
     spec = load_spec(args.spec)
+    # the spec as drawn from: results.json's spec.n / spec.seed say what --n / --seed chose
+    spec = dataclasses.replace(spec, n=spec.n if args.n is None else args.n,
+                               seed=spec.seed if args.seed is None else args.seed)  # fmt: skip
     safe = "".join(ch if ch.isalnum() or ch in "-_" else "_" for ch in args.name)[:40]
     out = Path(args.out) if args.out else Path("trials-out") / f"{spec.name}-{safe}-trial-{args.trial}"
     refuse_other_run(out, spec.name, args.name)
     try:
         row = fly_trial(
-            spec, args.trial, out, n=args.n, seed=args.seed, speed=args.speed, pilot=args.name,
+            spec, args.trial, out, speed=args.speed, pilot=args.name,
             dashboard_port=args.dashboard_port, api_port=args.api_port, gcs_port=args.gcs_port,
             video_port=args.video_port, say=lambda line: print(line, flush=True),
         )  # fmt: skip

@@ -24,7 +24,9 @@ values are in its environment:
 
 The vehicle process ends the trial itself (touchdown + disarm, crash, leaving the footage, timeout), writes the
 logs and prints `viva-sitl trial: {...}`; the pilot then gets PILOT_EXIT_GRACE_S to exit on its own (the vehicle
-still answers), then both are stopped. Every process runs in its own process group and is ended (SIGINT, SIGTERM, then
+still answers), then both are stopped. A pilot that exits with a non-zero code before that ends its trial at once
+as pilot_error with its last stderr lines (one that exits with 0 leaves the vehicle to end it). The pilot's stdout
+and stderr go to pilot.log as printed (bytes: anything is fine). Every process runs in its own process group and is ended (SIGINT, SIGTERM, then
 SIGKILL of the group) on every exit path, including Ctrl-C and the trial's wall limit; on Linux they also get
 PR_SET_PDEATHSIG, so they die with the worker even if it is killed outright.
 """
@@ -74,14 +76,16 @@ def free_ports(kind: int, count: int) -> list[int]:
             s.close()
 
 
-def _start(cmd: list[str], log: IO[str], env: dict[str, str] | None = None, cwd: str | None = None) -> subprocess.Popen[str]:  # fmt: skip
+def _start(cmd: list[str], env: dict[str, str] | None = None, cwd: str | None = None, *,
+           split_stderr: bool = False) -> subprocess.Popen[bytes]:  # fmt: skip
+    """Bytes, not text: a program may print anything (non-UTF-8 too); the logs keep it as printed."""
     return subprocess.Popen(
-        cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env, cwd=cwd,
-        start_new_session=True, preexec_fn=_pdeathsig if sys.platform.startswith("linux") else None,
+        cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE if split_stderr else subprocess.STDOUT, env=env,
+        cwd=cwd, start_new_session=True, preexec_fn=_pdeathsig if sys.platform.startswith("linux") else None,
     )  # fmt: skip
 
 
-def stop_group(p: subprocess.Popen[str], grace_s: float = 3.0) -> int | None:
+def stop_group(p: subprocess.Popen[bytes], grace_s: float = 3.0) -> int | None:
     """End a process and everything in its group: SIGINT, then SIGTERM, then SIGKILL."""
     for sig, wait in ((signal.SIGINT, grace_s), (signal.SIGTERM, 2.0), (signal.SIGKILL, 2.0)):
         if p.poll() is not None:
@@ -96,26 +100,40 @@ def stop_group(p: subprocess.Popen[str], grace_s: float = 3.0) -> int | None:
 
 
 class _Pump(threading.Thread):
-    """Copies a process's output to a log file and remembers the lines we wait for."""
+    """Copies one output stream of a process to a log file (bytes as printed) and remembers its last lines and the
+    lines we wait for. Survives anything: undecodable bytes, a log that cannot be written (it keeps draining the
+    pipe, so the process never blocks on a full one)."""
 
-    def __init__(self, p: subprocess.Popen[str], log: IO[str], watch: tuple[str, ...]) -> None:
+    def __init__(self, stream: IO[bytes] | None, log: IO[bytes], watch: tuple[str, ...],
+                 lock: threading.Lock | None = None) -> None:  # fmt: skip
         super().__init__(daemon=True)
-        self.p, self.log, self.watch = p, log, watch
+        assert stream is not None
+        self.stream, self.log, self.watch = stream, log, watch
+        self.lock = lock or threading.Lock()
         self.hits: dict[str, str] = {}
         self.tail: list[str] = []
         self.event = threading.Event()
 
     def run(self) -> None:
-        assert self.p.stdout is not None
-        for line in self.p.stdout:
-            self.log.write(line)
-            self.log.flush()
-            self.tail = (self.tail + [line.rstrip()])[-20:]
-            for w in self.watch:
-                if line.startswith(w):
-                    self.hits[w] = line
-                    self.event.set()
-        self.event.set()
+        try:
+            for raw in self.stream:
+                with self.lock, contextlib.suppress(OSError, ValueError):
+                    self.log.write(raw)
+                    self.log.flush()
+                line = raw.decode("utf-8", errors="replace")
+                self.tail = (self.tail + [line.rstrip()])[-20:]
+                for w in self.watch:
+                    if line.startswith(w):
+                        self.hits[w] = line
+                        self.event.set()
+        except (OSError, ValueError):  # the pipe closed under us (the process was stopped)
+            pass
+        finally:
+            self.event.set()
+
+    def last(self, k: int = 3) -> str:
+        """The last k non-empty lines, joined with ' | '."""
+        return " | ".join([x.strip() for x in self.tail if x.strip()][-k:])
 
 
 def pilot_command(template: str, values: dict[str, str]) -> list[str]:
@@ -185,8 +203,8 @@ def run_external_trial(
     env.update({f"VIVA_SITL_{k.upper()}": v for k, v in values.items() if k != "python"})
     env["PYTHONUNBUFFERED"] = "1"
     limit = wall_limit_s if wall_limit_s is not None else 90.0 + 3.0 * spec.timeout_s / spec.speed
-    sitl: subprocess.Popen[str] | None = None
-    pilot: subprocess.Popen[str] | None = None
+    sitl: subprocess.Popen[bytes] | None = None
+    pilot: subprocess.Popen[bytes] | None = None
     end_override: tuple[str, str] | None = None
     pilot_note = ""
     aborted = threading.Event()
@@ -195,10 +213,10 @@ def run_external_trial(
         for sig in (signal.SIGINT, signal.SIGTERM):
             old_handlers[sig] = signal.signal(sig, lambda *_: aborted.set())
     plog_path = trial_dir / "pilot.log" if pcmd is not None else Path(os.devnull)
-    with (trial_dir / "sitl.log").open("w") as slog, plog_path.open("w") as plog:
+    with (trial_dir / "sitl.log").open("wb") as slog, plog_path.open("wb") as plog:
         try:
-            sitl = _start(sitl_cmd, slog)
-            spump = _Pump(sitl, slog, (READY_PREFIX, TRIAL_PREFIX))
+            sitl = _start(sitl_cmd)
+            spump = _Pump(sitl.stdout, slog, (READY_PREFIX, TRIAL_PREFIX))
             spump.start()
             t_start = time.monotonic()
             while READY_PREFIX not in spump.hits:
@@ -217,13 +235,16 @@ def run_external_trial(
                 if on_ready is not None:
                     on_ready(spump.hits[READY_PREFIX].rstrip())
                 try:
-                    pilot = _start(pcmd, plog, env=env) if pcmd is not None else None
+                    pilot = _start(pcmd, env=env, split_stderr=True) if pcmd is not None else None
                 except OSError as exc:
                     assert pcmd is not None
                     end_override = ("pilot_error", f"cannot start the pilot {pcmd[0]!r}: {exc}")
                 if pilot is not None:
-                    ppump = _Pump(pilot, plog, ())
+                    plock = threading.Lock()  # stdout and stderr into the one pilot.log, line by line
+                    ppump = _Pump(pilot.stdout, plog, (), plock)
+                    epump = _Pump(pilot.stderr, plog, (), plock)
                     ppump.start()
+                    epump.start()
                 while end_override is None and sitl.poll() is None and TRIAL_PREFIX not in spump.hits:
                     if aborted.is_set():
                         end_override = ("aborted", "stopped by the user (Ctrl-C) before the trial ended")
@@ -233,8 +254,22 @@ def run_external_trial(
                         break
                     if pilot is not None and pilot.poll() is not None and not pilot_note:
                         rc = pilot.returncode
-                        last = next((x for x in reversed(ppump.tail) if x.strip()), "")
-                        pilot_note = f"pilot exited with code {rc}" + (f": {last}"[:200] if rc else "")
+                        if rc != 0:  # a failed pilot (missing script or package, a crash) fails its trial now
+                            ppump.join(2.0)
+                            epump.join(2.0)
+                            last = epump.last() or ppump.last()
+                            why = (
+                                f"-{signal.Signals(-rc).name}"
+                                if rc < 0 and -rc in signal.valid_signals()
+                                else rc
+                            )
+                            end_override = ("pilot_error", f"pilot exited with code {why} before the trial ended"
+                                            + (f": {last}"[:400] if last else ""))  # fmt: skip
+                            pilot_note = f"pilot exited with code {rc}"
+                            break
+                        pilot_note = (
+                            "pilot exited with code 0 before the trial ended"  # e.g. a mission uploader
+                        )
                     time.sleep(0.1)
         finally:
             if pilot is not None:
@@ -267,7 +302,7 @@ def run_external_trial(
             log.events.append(
                 {"t_s": log.end_t_s, "kind": "end", "text": f"aborted: {log.end_detail}", "severity": 4}
             )
-    if pilot_note and log.end != "landed":
+    if pilot_note and log.end not in ("landed", "pilot_error"):
         log.end_detail = f"{log.end_detail}; {pilot_note}"
     if pilot_note:
         log.events.append({"t_s": log.end_t_s, "kind": "pilot", "text": pilot_note, "severity": 6})

@@ -15,24 +15,20 @@ import json
 import math
 import time
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
 from viva_sitl import __version__
+from viva_sitl.evaluation.results import Campaign, Row, is_infra
 from viva_sitl.evaluation.scoring import COLUMNS, OLDER_SCHEMAS, SCHEMA
 from viva_sitl.evaluation.stats import aggregate, paired
-
-if TYPE_CHECKING:
-    from viva_sitl.evaluation.campaign import Campaign
-
-Row = dict[str, Any]
 
 
 def write_reports(camp: Campaign) -> None:
     out = camp.out_dir
     rows = camp.ordered_rows()
-    agg = aggregate(rows, camp.spec.criterion.describe())
+    agg = infra_aggregate(rows, camp.spec.criterion.describe())
     doc = {
         "schema": SCHEMA,
         "viva_sitl_version": __version__,
@@ -40,6 +36,7 @@ def write_reports(camp: Campaign) -> None:
         "pilot": camp.pilot,
         "backend": camp.backend,
         "jobs": camp.jobs,
+        "run": camp.run_record(),
         "complete": camp.complete and not camp.interrupted,
         "trials_total": len(camp.scenarios),
         "trials_done": len(rows),
@@ -59,6 +56,34 @@ def write_reports(camp: Campaign) -> None:
             w.writerow({k: ("" if r.get(k) is None else r.get(k)) for k in COLUMNS})
     (out / "results.csv.tmp").replace(out / "results.csv")
     (out / "report.html").write_text(render_html(doc, out))
+
+
+def infra_aggregate(rows: list[Row], criterion: str) -> dict[str, Any]:
+    """The aggregate over the trials that flew: infrastructure errors (results.INFRA_ENDS, the harness's failure,
+    not the pilot's) are left out of the success rate and the scores and counted in `infra_errors`; `ends` still
+    counts every trial."""
+    infra = [r for r in rows if is_infra(r)]
+    agg = aggregate([r for r in rows if not is_infra(r)], criterion)
+    ends: dict[str, int] = {}
+    for r in rows:
+        ends[str(r.get("end"))] = ends.get(str(r.get("end")), 0) + 1
+    agg["ends"] = dict(sorted(ends.items()))
+    by_end: dict[str, int] = {}
+    for r in infra:
+        by_end[str(r["end"])] = by_end.get(str(r["end"]), 0) + 1
+    agg["infra_errors"] = {"n": len(infra), "trials": [r["trial"] for r in infra], "ends": by_end}
+    return agg
+
+
+def infra_line(agg: dict[str, Any]) -> str | None:
+    """'2 trials failed in the harness, not the pilot (trial_error 1, worker_died 1: trials 3, 5)', or None."""
+    inf = agg.get("infra_errors") or {}
+    if not inf.get("n"):
+        return None
+    ends = ", ".join(f"{k} {v}" for k, v in inf["ends"].items())
+    trials = ", ".join(map(str, inf["trials"][:10])) + (", ..." if len(inf["trials"]) > 10 else "")
+    return (f"{inf['n']} trial{'s' if inf['n'] != 1 else ''} failed in the harness, not the pilot ({ends}: "
+            f"trial{'s' if inf['n'] != 1 else ''} {trials})")  # fmt: skip
 
 
 def read_results(out_dir: str | Path) -> dict[str, Any]:
@@ -217,6 +242,7 @@ def render_html(doc: dict[str, Any], out_dir: Path) -> str:
              f"{doc['jobs']}; viva-sitl {doc['viva_sitl_version']}; {doc['created_utc']}. Files: "
              f"<a href='results.json'>results.json</a>, <a href='results.csv'>results.csv</a> "
              f"(schema <code>{doc['schema']}</code>).</p>"]  # fmt: skip
+    parts.append(_provenance_html(doc))
     rate = agg["success_rate"]
     ci = agg["success_rate_ci95_wilson"]
     parts.append(
@@ -224,10 +250,15 @@ def render_html(doc: dict[str, Any], out_dir: Path) -> str:
         f"descent below {spec['final_descent_below_m']:g} m): "
         + (f"<b>{agg['success']}/{agg['success_judged']} = {100 * rate:.1f} %</b> (95 % CI {100 * ci[0]:.1f}–"
            f"{100 * ci[1]:.1f} %, Wilson; bootstrap {agg['success_rate_ci95_bootstrap']})" if rate is not None
+           else "<b>unavailable</b> (no trial flew)" if agg.get("n") == 0 and rows
            else "<b>unavailable</b> (no ground truth for these footages)")
         + f". Landed: {_fmt(agg['landed_rate'])}. Ends: "
         + ", ".join(f"{k} {v}" for k, v in agg["ends"].items()) + ".</p>"
     )  # fmt: skip
+    infra = infra_line(agg)
+    if infra is not None:
+        parts.append(f"<p class='bad' id='infra'>{html.escape(infra)}: left out of the success rate and the "
+                     "scores, which count only the trials that flew; <code>--resume</code> runs them again.</p>")  # fmt: skip
     parts.append("<h2>Scores</h2><p>Over the trials where a score is available: <i>n</i> counts them (a distance "
                  "needs the footage's object tracks and an object of that class in them, touchdown scores a "
                  "touchdown); <i>unavailable</i> = no trial has it, never 0. <code>dist_*</code>: at touchdown, "
@@ -292,6 +323,20 @@ def render_html(doc: dict[str, Any], out_dir: Path) -> str:
     parts.extend(_all_trials_table(rows))
     parts.append("</body></html>")
     return "\n".join(parts)
+
+
+def _provenance_html(doc: dict[str, Any]) -> str:
+    """What ran (results.json "run"): the pilot command, spec hash, seed, n, timing, speed, versions."""
+    run = doc.get("run")
+    if not isinstance(run, dict):
+        return "<p id='provenance'>What ran: not recorded (results written before viva-sitl recorded it).</p>"
+    vers = ", ".join(
+        f"{html.escape(str(k))} {html.escape(str(v))}" for k, v in (run.get("versions") or {}).items()
+    )
+    return (f"<p id='provenance'>What ran: {html.escape(str(run.get('pilot_kind')))} pilot "
+            f"<code>{html.escape(str(run.get('pilot')))}</code>; spec hash <code>{str(run.get('spec_hash'))[:16]}"
+            f"</code>; seed {run.get('seed')}; n {run.get('n')}; timing {html.escape(str(run.get('timing')))}; "
+            f"speed {run.get('speed')}; versions: {vers}.</p>")  # fmt: skip
 
 
 # the per-trial table: the scenario's key, the outcome and every score a benchmark user compares (headers are the
