@@ -7,6 +7,7 @@ raise `PerceptionError` naming the extra to install when it is absent.
     from viva_sitl.perception import Detector, train_detector                          # detect.py (perception-yolo)
     from viva_sitl.perception.dataset import ExportSpec, export_dataset                # dataset.py
     from viva_sitl.perception.segment import Segmenter, train_segmenter                # segment.py (torch)
+    from viva_sitl.perception.landing_spot import Eyes, PlanConfig, choose_spot         # landing_spot.py (no torch)
 """
 
 from viva_sitl.perception.detect import Detection, Detector, train_detector
