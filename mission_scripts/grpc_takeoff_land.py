@@ -19,9 +19,9 @@ import argparse
 import asyncio
 import os
 import sys
-import time
-from collections.abc import AsyncIterator, Callable
-from typing import Any, TypeVar
+from typing import Any
+
+from _mission import MissionFailed, add_time_limits, log, run_flight, script_parser, wait_for
 
 try:  # mavsdk-grpc (current home of the classic API)
     from mavsdk_grpc import System
@@ -29,33 +29,6 @@ try:  # mavsdk-grpc (current home of the classic API)
 except ImportError:  # mavsdk<4 (the same API under the old name)
     from mavsdk import System  # type: ignore[no-redef]
     from mavsdk.action import ActionError  # type: ignore[no-redef]
-
-T = TypeVar("T")
-
-
-class MissionFailed(Exception):
-    """A check failed or a command was refused: the message is what the user sees."""
-
-
-def log(text: str) -> None:
-    print(f"[{time.strftime('%H:%M:%S')}] {text}", flush=True)
-
-
-async def wait_for(
-    stream: AsyncIterator[T], predicate: Callable[[T], bool], timeout_s: float, what: str
-) -> T:
-    """First value of a telemetry stream satisfying `predicate`; MissionFailed after timeout_s (wall seconds)."""
-
-    async def first() -> T:
-        async for value in stream:
-            if predicate(value):
-                return value
-        raise MissionFailed(f"telemetry stream ended while waiting for {what}")
-
-    try:
-        return await asyncio.wait_for(first(), timeout_s)
-    except TimeoutError:
-        raise MissionFailed(f"timed out after {timeout_s:.0f} s waiting for {what}") from None
 
 
 async def fly(args: argparse.Namespace) -> dict[str, Any]:
@@ -126,31 +99,15 @@ async def _fly(args: argparse.Namespace, drone: Any) -> dict[str, Any]:
 
 
 def main() -> int:
-    parser = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
-    parser.add_argument("url", nargs="?", default="udpin://0.0.0.0:14540", help="MAVSDK connection URL")
+    parser = script_parser(__doc__, "udpin://0.0.0.0:14540", "MAVSDK connection URL")
     parser.add_argument("--altitude", type=float, default=5.0, help="takeoff altitude above home, m")
     parser.add_argument("--alt-tolerance", type=float, default=0.5, help="accepted hover altitude error, m")
     parser.add_argument(
         "--grpc-port", type=int, default=50051, help="local TCP port for mavsdk_server's gRPC"
     )
-    parser.add_argument("--timeout", type=float, default=120.0, help="whole-flight limit, wall seconds")
-    parser.add_argument("--step-timeout", type=float, default=60.0, help="limit for each wait, wall seconds")
+    add_time_limits(parser, 120.0)
     args = parser.parse_args()
-    try:
-        result = asyncio.run(asyncio.wait_for(fly(args), args.timeout))
-    except MissionFailed as exc:
-        print(f"FAILED: {exc}", file=sys.stderr, flush=True)
-        return 1
-    except TimeoutError:
-        print(
-            f"FAILED: the flight took longer than --timeout {args.timeout:.0f} s", file=sys.stderr, flush=True
-        )
-        return 1
-    print("RESULT " + " ".join(f"{k}={v}" for k, v in result.items()), flush=True)
-    log("success")
-    return 0
+    return run_flight(fly(args), args.timeout)
 
 
 if __name__ == "__main__":

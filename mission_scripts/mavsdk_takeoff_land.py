@@ -14,54 +14,16 @@ Exit status: 0 on success, 1 on a failed check, a rejected command or a timeout 
 from __future__ import annotations
 
 import argparse
-import asyncio
-import contextlib
 import sys
-import time
-from collections.abc import AsyncGenerator, Callable
-from typing import Any, TypeVar
+from typing import Any
 
-from mavsdk.asyncio import ComponentType, Configuration, Mavsdk
+from _mission import MissionFailed, add_time_limits, first_autopilot, log, run_flight, script_parser, wait_for
 from mavsdk.asyncio.plugins.action import ActionAsync, ActionError
 from mavsdk.asyncio.plugins.telemetry import LandedState, TelemetryAsync
 
-T = TypeVar("T")
-
-
-class MissionFailed(Exception):
-    """A check failed or a command was refused: the message is what the user sees."""
-
-
-def log(text: str) -> None:
-    print(f"[{time.strftime('%H:%M:%S')}] {text}", flush=True)
-
-
-async def wait_for(
-    stream: AsyncGenerator[T, None], predicate: Callable[[T], bool], timeout_s: float, what: str
-) -> T:
-    """First value of a telemetry stream satisfying `predicate`; MissionFailed after timeout_s (wall seconds)."""
-
-    async def first() -> T:
-        async with contextlib.aclosing(stream):  # closing the generator unsubscribes
-            async for value in stream:
-                if predicate(value):
-                    return value
-        raise MissionFailed(f"telemetry stream ended while waiting for {what}")
-
-    try:
-        return await asyncio.wait_for(first(), timeout_s)
-    except TimeoutError:
-        raise MissionFailed(f"timed out after {timeout_s:.0f} s waiting for {what}") from None
-
 
 async def fly(args: argparse.Namespace) -> dict[str, Any]:
-    config = Configuration.create_with_component_type(ComponentType.GROUND_STATION)
-    async with Mavsdk(config) as mavsdk:
-        log(f"connecting to {args.url}")
-        await mavsdk.add_any_connection(args.url)
-        system = await mavsdk.first_autopilot(timeout_s=args.step_timeout)
-        if system is None:
-            raise MissionFailed(f"no autopilot heartbeat on {args.url} within {args.step_timeout:.0f} s")
+    async with first_autopilot(args.url, args.step_timeout) as system:
         log(f"connected to system {await system.get_system_id()}")
         telemetry, action = TelemetryAsync(system), ActionAsync(system)
 
@@ -137,28 +99,12 @@ async def fly(args: argparse.Namespace) -> dict[str, Any]:
 
 
 def main() -> int:
-    parser = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
-    parser.add_argument("url", nargs="?", default="udpin://0.0.0.0:14540", help="MAVSDK connection URL")
+    parser = script_parser(__doc__, "udpin://0.0.0.0:14540", "MAVSDK connection URL")
     parser.add_argument("--altitude", type=float, default=5.0, help="takeoff altitude above home, m")
     parser.add_argument("--alt-tolerance", type=float, default=0.5, help="accepted hover altitude error, m")
-    parser.add_argument("--timeout", type=float, default=120.0, help="whole-flight limit, wall seconds")
-    parser.add_argument("--step-timeout", type=float, default=60.0, help="limit for each wait, wall seconds")
+    add_time_limits(parser, 120.0)
     args = parser.parse_args()
-    try:
-        result = asyncio.run(asyncio.wait_for(fly(args), args.timeout))
-    except MissionFailed as exc:
-        print(f"FAILED: {exc}", file=sys.stderr, flush=True)
-        return 1
-    except TimeoutError:
-        print(
-            f"FAILED: the flight took longer than --timeout {args.timeout:.0f} s", file=sys.stderr, flush=True
-        )
-        return 1
-    print("RESULT " + " ".join(f"{k}={v}" for k, v in result.items()), flush=True)
-    log("success")
-    return 0
+    return run_flight(fly(args), args.timeout)
 
 
 if __name__ == "__main__":

@@ -31,6 +31,7 @@ from collections.abc import Callable
 from typing import Any
 
 os.environ.setdefault("MAVLINK20", "1")  # pymavlink reads this at import: speak MAVLink 2 as PX4 does
+from _mission import MissionFailed, failed, log, script_parser, succeeded  # noqa: E402
 from pymavlink import mavutil  # noqa: E402
 
 mavlink = mavutil.mavlink
@@ -39,14 +40,6 @@ GCS_HEARTBEAT_PERIOD_S = 1.0
 PREARM_BIT = 0x10000000  # MAV_SYS_STATUS_PREARM_CHECK
 MAIN_MODE_AUTO, SUB_MODE_MISSION = 4, 4
 LANDED_STATES = {0: "UNDEFINED", 1: "ON_GROUND", 2: "IN_AIR", 3: "TAKEOFF", 4: "LANDING"}
-
-
-class MissionFailed(Exception):
-    """A check failed, a command was refused or a wait timed out: the message is what the user sees."""
-
-
-def log(text: str) -> None:
-    print(f"[{time.strftime('%H:%M:%S')}] {text}", flush=True)
 
 
 def px4_mode_name(custom_mode: int) -> str:
@@ -343,10 +336,7 @@ def _fly(args: argparse.Namespace, gcs: Gcs) -> dict[str, Any]:
 
 
 def main() -> int:
-    parser = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
-    parser.add_argument("url", nargs="?", default="udpin:0.0.0.0:14550", help="pymavlink connection string")
+    parser = script_parser(__doc__, "udpin:0.0.0.0:14550", "pymavlink connection string")
     parser.add_argument("--altitude", type=float, default=10.0, help="mission altitude above home, m")
     parser.add_argument("--north", type=float, default=15.0, help="waypoints: metres north of home")
     parser.add_argument(
@@ -366,11 +356,8 @@ def main() -> int:
     try:
         result = fly(args)
     except MissionFailed as exc:
-        print(f"FAILED: {exc}", file=sys.stderr, flush=True)
-        return 1
-    print("RESULT " + " ".join(f"{k}={v}" for k, v in result.items()), flush=True)
-    log("success")
-    return 0
+        return failed(str(exc))
+    return succeeded(result)
 
 
 if __name__ == "__main__":

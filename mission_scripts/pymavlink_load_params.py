@@ -34,6 +34,7 @@ from pathlib import Path
 from typing import Any
 
 os.environ.setdefault("MAVLINK20", "1")  # pymavlink reads this at import: speak MAVLink 2 as PX4 does
+from _mission import failed, log  # noqa: E402
 from pymavlink import mavutil  # noqa: E402
 
 mavlink = mavutil.mavlink
@@ -54,10 +55,6 @@ class FileParam:
     @property
     def is_int(self) -> bool:
         return self.ptype in INT_TYPES
-
-
-def log(text: str) -> None:
-    print(f"[{time.strftime('%H:%M:%S')}] {text}", flush=True)
 
 
 def parse_qgc_params(path: Path, component: int) -> tuple[list[FileParam], int]:
@@ -242,8 +239,7 @@ def main(argv: list[str] | None = None) -> int:
         if unknown and not args.allow_unknown:
             raise LoadFailed(f"the vehicle has no parameter {', '.join(unknown[:10])} (never answered)")
     except LoadFailed as exc:
-        print(f"FAILED: {exc}", file=sys.stderr, flush=True)
-        return 1
+        return failed(str(exc))
     return 0
 
 

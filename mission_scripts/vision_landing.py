@@ -45,162 +45,37 @@ import os
 import sys
 import time
 from collections.abc import AsyncGenerator, Callable
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, NoReturn
 
-import cv2
 import numpy as np
+from _mission import (
+    SETPOINT_PERIOD_S,
+    MissionFailed,
+    Tracker,
+    arm_and_take_off,
+    failed,
+    first_autopilot,
+    log,
+    print_result,
+)
 from numpy.typing import NDArray
 
-SETPOINT_PERIOD_S = 0.05  # 20 Hz, MAVSDK's own re-send rate; PX4 needs > 2 Hz
+try:
+    from viva_sitl.perception.errors import PerceptionError
+    from viva_sitl.perception.landing_spot import Eyes, PlanConfig, RiskView, Spot, check_spot, choose_spot
+except ImportError as _exc:  # one line, not a traceback
+    print(f"vision_landing: viva_sitl is not importable ({_exc}): pip install 'viva-sitl[perception]'",
+          file=sys.stderr)  # fmt: skip
+    sys.exit(2)
+
 LAND_NOW_TEXT = "land now"  # the trials' STATUSTEXT is "Emergency: land now"
 MAX_REENGAGE = 2  # times OFFBOARD is taken back after the vehicle's offboard-loss failsafe
 STALL_S = 0.25  # a 20 Hz re-send gap this long (wall s): this process was starved (COM_OF_LOSS_T 1 s / speed)
-PERSON_NAMES = {
-    "person",
-    "bicycle",
-    "moving object",
-}  # a derived "moving object" counts as a person (careful)
-VEHICLE_NAMES = {"car", "bus", "truck"}
-
-
-class MissionFailed(Exception):
-    """A check failed or a command was refused: the message is what the user sees."""
-
-
-def log(text: str) -> None:
-    print(f"[{time.strftime('%H:%M:%S')}] {text}", flush=True)
-
-
-# ---------------------------------------------------------------------------------------------------- perception
-
-
-@dataclass(frozen=True)
-class PlanConfig:
-    cell_m: float = 0.5  # ground grid cell
-    margin_m: float = 2.0  # landing precision: the spot's level is the worst within this disc
-    clearance_cap_m: float = 15.0  # clearance from level >= 4 beyond this does not matter
-    search_radius_m: float = 40.0  # reachable: at most this far from where it is
-    person_buffer_m: float = 6.0  # keep-out disc (level 5) around a detected person
-    vehicle_buffer_m: float = 4.0  # ... around a detected vehicle
-    accept_level: int = 2  # a spot whose level rises above max(planned, this) is re-planned
-
-
-@dataclass(frozen=True)
-class Spot:
-    north_m: float
-    east_m: float
-    level: int  # worst predicted level within margin_m
-    clearance_m: float  # distance to the nearest predicted level >= 4 (capped)
-    distance_m: float  # from where it looked
-
-
-@dataclass
-class RiskView:
-    """Predicted levels on a north/east grid (0 = not seen) and what went into them."""
-
-    levels: NDArray[np.uint8]
-    north0_m: float
-    east0_m: float
-    cell_m: float
-    people: int
-    vehicles: int
-    sim_time_s: float
-
-    def cell_of(self, north_m: float, east_m: float) -> tuple[int, int]:
-        return round((north_m - self.north0_m) / self.cell_m), round((east_m - self.east0_m) / self.cell_m)
-
-
-class Eyes:
-    """The segmenter and/or detector, turning one frame + its pose into a RiskView."""
-
-    def __init__(self, segmenter: Any | None, detector: Any | None, cfg: PlanConfig) -> None:
-        self.segmenter, self.detector, self.cfg = segmenter, detector, cfg
-
-    def look(self, image_bgr: NDArray[np.uint8], meta: dict[str, Any]) -> RiskView:
-        from viva_sitl.perception.detect import Detector
-        from viva_sitl.perception.segment import Segmenter
-
-        cfg = self.cfg
-        if self.segmenter is not None:
-            img_levels = cv2.medianBlur(self.segmenter.predict(image_bgr), 5)  # speckle is not ground
-        else:  # detector only: every seen pixel is open ground unless a detection says otherwise
-            img_levels = np.ones(image_bgr.shape[:2], np.uint8)
-        ground = Segmenter.on_ground(img_levels, cell_m=cfg.cell_m, meta=meta)
-        levels = ground.levels.copy()
-        people = vehicles = 0
-        if self.detector is not None:
-            dets = self.detector.detect(image_bgr)
-            ne = Detector.on_ground(dets, meta=meta)
-            rows, cols = levels.shape
-            nn, ee = np.meshgrid(
-                ground.north0_m + cfg.cell_m * np.arange(rows),
-                ground.east0_m + cfg.cell_m * np.arange(cols),
-                indexing="ij",
-            )
-            for d, (n, e) in zip(dets, ne, strict=True):
-                name = d.name.lower()
-                if not (math.isfinite(n) and math.isfinite(e)):
-                    continue
-                if name in PERSON_NAMES:
-                    people, r = people + 1, cfg.person_buffer_m
-                elif name in VEHICLE_NAMES:
-                    vehicles, r = vehicles + 1, cfg.vehicle_buffer_m
-                else:
-                    continue
-                levels[(nn - n) ** 2 + (ee - e) ** 2 <= r * r] = 5
-        return RiskView(levels, ground.north0_m, ground.east0_m, cfg.cell_m, people, vehicles,
-                        float(meta.get("sim_time_s", math.nan)))  # fmt: skip
-
-
-def _disc(radius_cells: int) -> NDArray[np.uint8]:
-    k = 2 * radius_cells + 1
-    return np.asarray(cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (k, k)), np.uint8)
-
-
-def spot_maps(view: RiskView, cfg: PlanConfig) -> tuple[NDArray[np.uint8], NDArray[np.float32], NDArray[np.float32]]:  # fmt: skip
-    """(worst level within margin_m, clearance from level >= 4 in m, distance to unseen ground in m) per cell."""
-    lv = view.levels
-    r = max(1, round(cfg.margin_m / view.cell_m))
-    worst = np.asarray(cv2.dilate(lv, _disc(r)), np.uint8)
-    pad = 1  # outside the grid is unseen
-    safe = np.pad((lv < 4).astype(np.uint8), pad, constant_values=1)
-    seen = np.pad((lv > 0).astype(np.uint8), pad, constant_values=0)
-    clear = cv2.distanceTransform(safe, cv2.DIST_L2, 5)[pad:-pad, pad:-pad] * view.cell_m
-    edge = cv2.distanceTransform(seen, cv2.DIST_L2, 5)[pad:-pad, pad:-pad] * view.cell_m
-    return worst, np.asarray(clear, np.float32), np.asarray(edge, np.float32)
-
-
-def choose_spot(view: RiskView, here_ne: tuple[float, float], cfg: PlanConfig) -> Spot | None:
-    """The best seen spot within reach (None: nothing seen far enough from the edge of the view)."""
-    worst, clear, edge = spot_maps(view, cfg)
-    rows, cols = view.levels.shape
-    n = view.north0_m + view.cell_m * np.arange(rows)[:, None] + np.zeros((1, cols))
-    e = view.east0_m + view.cell_m * np.arange(cols)[None, :] + np.zeros((rows, 1))
-    dist = np.hypot(n - here_ne[0], e - here_ne[1])
-    ok = (view.levels > 0) & (edge >= cfg.margin_m) & (dist <= cfg.search_radius_m)
-    if not ok.any():
-        return None
-    w, c, d = worst[ok], np.minimum(clear[ok], cfg.clearance_cap_m), dist[ok]
-    best = int(np.lexsort((d, -np.round(c), w))[0])  # last key first: level, clearance (1 m steps), distance
-    return Spot(float(n[ok][best]), float(e[ok][best]), int(w[best]), float(c[best]), float(d[best]))
-
-
-def check_spot(view: RiskView, spot: Spot, cfg: PlanConfig) -> tuple[int, float] | None:
-    """(worst level within margin, clearance) at the spot in a new view; None when the spot is not in it."""
-    r, c = view.cell_of(spot.north_m, spot.east_m)
-    rows, cols = view.levels.shape
-    if not (0 <= r < rows and 0 <= c < cols) or view.levels[r, c] == 0:
-        return None
-    worst, clear, _ = spot_maps(view, cfg)
-    return int(worst[r, c]), float(min(clear[r, c], cfg.clearance_cap_m))
 
 
 def load_models(args: argparse.Namespace) -> tuple[Any | None, Any | None]:
     """(segmenter, detector); PerceptionError (one line) for a missing or foreign file or a missing extra."""
-    from viva_sitl.perception.errors import PerceptionError
-
     if not args.segmenter and not args.detector:
         raise PerceptionError("no model: give --segmenter PATH (risk U-Net) and/or --detector PATH (YOLO)")
     seg = det = None
@@ -237,84 +112,28 @@ def offboard_loss_text(text: str) -> bool:
     return "offboard" in t and ("lost" in t or "loss" in t or "no offboard" in t)
 
 
-class Tracker:
-    """The latest telemetry, kept fresh by background subscriptions; also the "land now" STATUSTEXT."""
+class LandingTracker(Tracker):
+    """The telemetry (a lost link fails every wait), and the vehicle's STATUSTEXTs: "land now" and the others."""
 
     def __init__(self, telemetry: Any, link_timeout_s: float) -> None:
-        self._telemetry = telemetry
-        self.values: dict[str, Any] = {}
+        super().__init__(telemetry, link_timeout_s)
         self.land_now = False
         self.texts: list[str] = []  # the vehicle's STATUSTEXTs since the last take_texts()
-        self.last_update = time.monotonic()
-        self.link_timeout_s = link_timeout_s
-        self._changed = asyncio.Event()
-        self._tasks: list[asyncio.Task[None]] = []
 
-    async def _follow(self, name: str, stream: AsyncGenerator[Any, None]) -> None:
-        async with contextlib.aclosing(stream):
-            async for value in stream:
-                if name == "text":
-                    if LAND_NOW_TEXT in value.text.lower():
-                        self.land_now = True
-                    else:
-                        self.texts = [*self.texts[-7:], value.text]
-                else:
-                    self.values[name] = value
-                    self.last_update = time.monotonic()
-                self._changed.set()
+    def streams(self) -> list[tuple[str, AsyncGenerator[Any, None]]]:
+        return [*super().streams(), ("text", self._telemetry.subscribe_status_text())]
 
-    async def start(self, timeout_s: float) -> None:
-        t = self._telemetry
-        for name, stream in (
-            ("pv", t.subscribe_position_velocity_ned()),
-            ("euler", t.subscribe_attitude_euler()),
-            ("mode", t.subscribe_flight_mode()),
-            ("landed", t.subscribe_landed_state()),
-            ("armed", t.subscribe_armed()),
-            ("text", t.subscribe_status_text()),
-        ):
-            self._tasks.append(asyncio.create_task(self._follow(name, stream)))
-        await self.wait_until(lambda: len(self.values) == 5, timeout_s, "first telemetry of every stream")
-
-    async def stop(self) -> None:
-        for task in self._tasks:
-            task.cancel()
-        await asyncio.gather(*self._tasks, return_exceptions=True)
+    def received(self, name: str, value: Any) -> None:
+        if name != "text":
+            super().received(name, value)
+        elif LAND_NOW_TEXT in value.text.lower():
+            self.land_now = True
+        else:
+            self.texts = [*self.texts[-7:], value.text]
 
     def take_texts(self) -> list[str]:
         texts, self.texts = self.texts, []
         return texts
-
-    def check_link(self) -> None:
-        quiet = time.monotonic() - self.last_update
-        if quiet > self.link_timeout_s:
-            raise MissionFailed(f"lost the vehicle: no telemetry for {quiet:.0f} s (disconnected?)")
-
-    async def wait_until(self, predicate: Callable[[], bool], timeout_s: float, what: str) -> None:
-        deadline = asyncio.get_running_loop().time() + timeout_s
-        while not predicate():
-            remaining = deadline - asyncio.get_running_loop().time()
-            if remaining <= 0:
-                raise MissionFailed(f"timed out after {timeout_s:.0f} s waiting for {what}")
-            if self.values:
-                self.check_link()
-            self._changed.clear()
-            with contextlib.suppress(TimeoutError):
-                await asyncio.wait_for(self._changed.wait(), min(remaining, 1.0))
-
-    @property
-    def ned(self) -> tuple[float, float, float]:
-        p = self.values["pv"].position
-        return p.north_m, p.east_m, p.down_m
-
-    @property
-    def vel(self) -> tuple[float, float, float]:
-        v = self.values["pv"].velocity
-        return v.north_m_s, v.east_m_s, v.down_m_s
-
-    @property
-    def alt_m(self) -> float:
-        return -self.ned[2]
 
 
 class Camera:
@@ -401,9 +220,7 @@ class Companion:
         self.replans = 0
         self.looks = 0
 
-    async def look(self, cam: Camera, tr: Tracker, after_sim_s: float) -> RiskView:
-        from viva_sitl.perception.errors import PerceptionError
-
+    async def look(self, cam: Camera, tr: LandingTracker, after_sim_s: float) -> RiskView:
         deadline = time.monotonic() + self.args.frame_timeout
         while True:
             tr.check_link()
@@ -420,7 +237,7 @@ class Companion:
             self.looks += 1
             return view
 
-    async def wait_trigger(self, tr: Tracker, cam: Camera, mode_name: Callable[[], str]) -> None:
+    async def wait_trigger(self, tr: LandingTracker, cam: Camera, mode_name: Callable[[], str]) -> None:
         land_at = None if self.scenario is None else self.scenario.get("land_at_s")
         if self.args.now:
             log("--now: landing at once")
@@ -438,7 +255,7 @@ class Companion:
                 await asyncio.sleep(0.1)
         log(f"'land now' received (mode {mode_name()})")
 
-    async def land(self, tr: Tracker, cam: Camera, action: Any, offboard: Any) -> dict[str, Any]:
+    async def land(self, tr: LandingTracker, cam: Camera, action: Any, offboard: Any) -> dict[str, Any]:
         from mavsdk.asyncio.plugins.telemetry import FlightMode
 
         args, cfg = self.args, self.cfg
@@ -534,7 +351,7 @@ class Companion:
             "spot_level": spot.level, "replans": self.replans, "looks": self.looks,
         }  # fmt: skip
 
-    async def _engage(self, tr: Tracker, offboard: Any) -> None:
+    async def _engage(self, tr: LandingTracker, offboard: Any) -> None:
         """OFFBOARD with the setpoint stream already flowing; a refused or unacknowledged start is retried."""
         from mavsdk.asyncio.plugins.offboard import OffboardError
         from mavsdk.asyncio.plugins.telemetry import FlightMode
@@ -555,7 +372,7 @@ class Companion:
             lambda: tr.values["mode"] == FlightMode.OFFBOARD, self.args.step_timeout, "OFFBOARD"
         )
 
-    async def _command_land(self, tr: Tracker, action: Any) -> None:
+    async def _command_land(self, tr: LandingTracker, action: Any) -> None:
         """AUTO.LAND; a lost COMMAND_ACK (a loaded link) is retried, and a mode already LAND counts as done."""
         from mavsdk.asyncio.plugins.action import ActionError
         from mavsdk.asyncio.plugins.telemetry import FlightMode
@@ -577,7 +394,7 @@ class Companion:
                     raise MissionFailed(f"land refused: {exc}") from exc
                 log(f"land: {exc}; retrying")
 
-    def _plan(self, view: RiskView, tr: Tracker) -> Spot:
+    def _plan(self, view: RiskView, tr: LandingTracker) -> Spot:
         n, e, _ = tr.ned
         spot = choose_spot(view, (n, e), self.cfg)
         if spot is None:
@@ -595,61 +412,29 @@ class Companion:
         return spot
 
 
-async def takeoff(tr: Tracker, telemetry: Any, action: Any, altitude_m: float, step_s: float) -> None:
-    from mavsdk.asyncio.plugins.action import ActionError
-
-    async def healthy() -> None:
-        async with contextlib.aclosing(telemetry.subscribe_health()) as stream:
-            async for h in stream:
-                if h.is_global_position_ok and h.is_home_position_ok and h.is_armable:
-                    return
-
-    try:
-        await asyncio.wait_for(healthy(), step_s)
-    except TimeoutError:
-        raise MissionFailed(
-            f"timed out after {step_s:.0f} s waiting for health (position, home, armable)"
-        ) from None
-    try:
-        await action.set_takeoff_altitude(altitude_m)
-        await action.arm()
-        await action.takeoff()
-    except ActionError as exc:
-        raise MissionFailed(f"command refused: {exc}") from exc
-    log(f"armed, taking off to {altitude_m:.1f} m")
-    await tr.wait_until(lambda: tr.alt_m >= altitude_m - 0.5, step_s, f"altitude {altitude_m - 0.5:.1f} m")
-
-
 async def fly(args: argparse.Namespace, eyes: Eyes, cfg: PlanConfig, scenario: dict[str, Any] | None) -> dict[str, Any]:  # fmt: skip
-    from mavsdk.asyncio import ComponentType, Configuration, Mavsdk
     from mavsdk.asyncio.plugins.action import ActionAsync
     from mavsdk.asyncio.plugins.offboard import OffboardAsync
     from mavsdk.asyncio.plugins.telemetry import LandedState, TelemetryAsync
 
     cam = Camera(args.frames)
     try:
-        config = Configuration.create_with_component_type(ComponentType.COMPANION_COMPUTER)
-        async with Mavsdk(config) as mavsdk:
-            log(f"connecting to {args.url}; camera {args.frames}")
-            await mavsdk.add_any_connection(args.url)
-            system = await mavsdk.first_autopilot(timeout_s=args.step_timeout)
-            if system is None:
-                raise MissionFailed(f"no autopilot heartbeat on {args.url} within {args.step_timeout:.0f} s")
+        async with first_autopilot(
+            args.url, args.step_timeout, companion=True, also=f"; camera {args.frames}"
+        ) as system:
             telemetry, action, offboard = TelemetryAsync(system), ActionAsync(system), OffboardAsync(system)
-            tr = Tracker(telemetry, args.link_timeout)
-            await tr.start(args.step_timeout)
-            try:
+            async with LandingTracker(telemetry, args.link_timeout).running(args.step_timeout) as tr:
                 on_ground = tr.values["landed"] == LandedState.ON_GROUND or not tr.values["armed"]
                 if on_ground:
                     if scenario is None or scenario.get("start") != "ground":
                         raise MissionFailed("the vehicle is on the ground: nothing to land (a ground-start "
                                             "scenario file makes it take off first)")  # fmt: skip
-                    await takeoff(tr, telemetry, action, float(scenario["altitude_m"]), args.step_timeout)
+                    await arm_and_take_off(
+                        tr, telemetry, action, float(scenario["altitude_m"]), args.step_timeout
+                    )
                 comp = Companion(args, eyes, cfg, scenario)
                 await comp.wait_trigger(tr, cam, lambda: str(tr.values["mode"].name))
                 return await comp.land(tr, cam, action, offboard)
-            finally:
-                await tr.stop()
     finally:
         cam.close()
 
@@ -719,12 +504,6 @@ def main() -> int:
     cfg = PlanConfig(margin_m=args.margin_m, search_radius_m=args.search_radius_m,
                      person_buffer_m=args.person_buffer_m, vehicle_buffer_m=args.vehicle_buffer_m)  # fmt: skip
     try:
-        from viva_sitl.perception.errors import PerceptionError
-    except ImportError as exc:
-        print(f"vision_landing: viva_sitl is not importable ({exc}): pip install 'viva-sitl[perception]'",
-              file=sys.stderr)  # fmt: skip
-        return 2
-    try:
         seg, det = load_models(args)
     except PerceptionError as exc:
         print(f"vision_landing: {exc}", file=sys.stderr, flush=True)
@@ -732,22 +511,15 @@ def main() -> int:
     try:
         result = asyncio.run(asyncio.wait_for(fly(args, Eyes(seg, det, cfg), cfg, scenario), args.timeout))
     except MissionFailed as exc:
-        print(f"FAILED: {exc}", file=sys.stderr, flush=True)
-        return 1
+        return failed(str(exc))
     except TimeoutError:
-        print(
-            f"FAILED: the landing took longer than --timeout {args.timeout:.0f} s",
-            file=sys.stderr,
-            flush=True,
-        )
-        return 1
+        return failed(f"the landing took longer than --timeout {args.timeout:.0f} s")
     except (ValueError, PerceptionError) as exc:  # e.g. a malformed frame socket address
-        print(f"FAILED: {exc}", file=sys.stderr, flush=True)
-        return 1
+        return failed(str(exc))
     except KeyboardInterrupt:
         print("vision_landing: interrupted (Ctrl-C)", file=sys.stderr, flush=True)
         return 130
-    print("RESULT " + " ".join(f"{k}={v}" for k, v in result.items()), flush=True)
+    print_result(result)
     return 0
 
 

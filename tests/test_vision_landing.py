@@ -249,17 +249,6 @@ def test_ctrl_c_is_a_clean_exit(token_segmenter: Path) -> None:
     assert p.returncode == 130 and "interrupted (Ctrl-C)" in err and "Traceback" not in err, err
 
 
-def _script_module() -> object:
-    import importlib.util
-
-    spec = importlib.util.spec_from_file_location("vision_landing", SCRIPT)
-    assert spec is not None and spec.loader is not None
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules["vision_landing"] = mod  # dataclasses resolve their module
-    spec.loader.exec_module(mod)
-    return mod
-
-
 def test_detections_become_keep_out_discs_on_the_ground(tmp_path: Path) -> None:
     """Detector only (no segmenter): every detected person/vehicle is a level-5 disc of its buffer on the ground,
     where the frame's pose puts it; the spot chosen keeps out of all of them."""
@@ -267,6 +256,7 @@ def test_detections_become_keep_out_discs_on_the_ground(tmp_path: Path) -> None:
     import numpy as np
 
     from viva_sitl.perception.detect import Detector
+    from viva_sitl.perception.landing_spot import PERSON_NAMES, VEHICLE_NAMES, Eyes, PlanConfig, choose_spot
     from viva_sitl.sim import Simulator
 
     net = ultralytics.YOLO("yolov8n.yaml", task="detect")  # random weights: boxes at a tiny threshold
@@ -283,15 +273,14 @@ def test_detections_become_keep_out_discs_on_the_ground(tmp_path: Path) -> None:
     pt = tmp_path / "tiny.pt"
     net.save(str(pt))
     det = Detector(pt, conf=1e-7, imgsz=160)
-    vl: Any = _script_module()
-    cfg = vl.PlanConfig(person_buffer_m=4.0, vehicle_buffer_m=3.0)
+    cfg = PlanConfig(person_buffer_m=4.0, vehicle_buffer_m=3.0)
     with Simulator(footage="synthetic") as sim:
         sim.reset(pos_ned_m=(10.0, -10.0, -25.0))
         frame = sim.render()
     meta = frame.meta.to_dict()
-    view = vl.Eyes(None, det, cfg).look(frame.image_bgr, meta)
+    view = Eyes(None, det, cfg).look(frame.image_bgr, meta)
     dets = det.detect(frame.image_bgr)
-    kept = [d for d in dets if d.name in vl.PERSON_NAMES | vl.VEHICLE_NAMES]
+    kept = [d for d in dets if d.name in PERSON_NAMES | VEHICLE_NAMES]
     assert kept and view.people + view.vehicles == len(kept)
     ground = Detector.on_ground(kept, meta=meta)
     for n, e in ground:
@@ -302,6 +291,6 @@ def test_detections_become_keep_out_discs_on_the_ground(tmp_path: Path) -> None:
     assert np.all(
         np.isin(view.levels[seen], (1, 5))
     )  # open ground or keep-out: nothing else without a segmenter
-    spot = vl.choose_spot(view, (10.0, -10.0), cfg)
+    spot = choose_spot(view, (10.0, -10.0), cfg)
     if spot is not None and spot.level == 1:
         assert np.min(np.hypot(ground[:, 0] - spot.north_m, ground[:, 1] - spot.east_m)) > cfg.person_buffer_m

@@ -8,6 +8,7 @@ raise `PerceptionError` naming the extra to install when it is absent.
     from viva_sitl.perception import Detector, train_detector                          # detect.py (perception-yolo)
     from viva_sitl.perception.dataset import ExportSpec, export_dataset                # dataset.py
     from viva_sitl.perception.segment import Segmenter, train_segmenter                # segment.py (torch)
+    from viva_sitl.perception.landing_spot import Eyes, PlanConfig, choose_spot         # landing_spot.py (no torch)
 
 This face imports the config and the errors at once; sr.py and detect.py load on first use of one of their names,
 so that viva_sitl.config can build an SRConfig without the upscalers and the camera renderer.
