@@ -72,6 +72,7 @@ class CommandHandler:
             M.MAV_CMD_DO_SET_MISSION_CURRENT: self._set_mission_current,
             M.MAV_CMD_DO_FLIGHTTERMINATION: self._terminate,
             M.MAV_CMD_DO_SET_HOME: self._set_home,
+            M.MAV_CMD_INJECT_FAILURE: self._inject_failure,
             M.MAV_CMD_REQUEST_MESSAGE: self._request_message,
             M.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES: self._request_fixed(M.MAVLINK_MSG_ID_AUTOPILOT_VERSION),
             M.MAV_CMD_GET_HOME_POSITION: self._request_fixed(M.MAVLINK_MSG_ID_HOME_POSITION),
@@ -260,6 +261,15 @@ class CommandHandler:
         if math.isfinite(req.p1) and req.p1 > 0.5:
             return self.vehicle.autopilot.kill(self._now), []
         return _ok(CommandResult.ACCEPTED), []
+
+    def _inject_failure(self, origin: Origin, req: CommandRequest) -> tuple[Outcome, list[MavMessage]]:
+        """MAV_CMD_INJECT_FAILURE: p1 FAILURE_UNIT, p2 FAILURE_TYPE, p3 instance (0: all), gated by SYS_FAILURE_EN
+        as PX4 (DENIED, "Failure injection disabled"); the same Autopilot.inject_failure the trials' scenario
+        failures take. Units PX4 SITL's simulators do not implement here are UNSUPPORTED (autopilot/failures.py)."""
+        if not all(math.isfinite(v) for v in (req.p1, req.p2, req.p3)):
+            return _ok(CommandResult.DENIED, "Failure injection: parameters not finite"), []
+        unit, ftype, instance = round(req.p1), round(req.p2), round(req.p3)
+        return self.vehicle.autopilot.inject_failure(self._now, unit, ftype, instance), []
 
     def _set_home(self, origin: Origin, req: CommandRequest) -> tuple[Outcome, list[MavMessage]]:
         ap = self.vehicle.autopilot
