@@ -360,6 +360,43 @@ def test_world_from_a_user_still_with_tracks_and_risk(tmp_path: Path) -> None:
     assert world.risk_at(n, e + 2.4, 0.7) == 4 and world.risk_at(n, e + 2.6, 0.7) == 1
 
 
+def test_annotated_classes_say_what_the_truth_can_answer(tmp_path: Path) -> None:
+    """`annotated` tells "nobody of that class here" from "nobody looked": undeclared answers nothing (older
+    metadata stays readable, conservatively), a declared class answers for itself, "object" needs people and
+    vehicles (or "all"); a bad value is one line; every shipped footage declares it."""
+    from viva_sitl.footage.metadata import load_config_dir
+
+    cv2.imwrite(str(tmp_path / "a.png"), np.full((300, 400, 3), 90, np.uint8))
+    (tmp_path / "a.txt").write_text('1 10 10 20 20 0 0 0 0 "Car"\n1 10 10 20 20 5 0 0 0 "Car"\n')
+    base = 'name = "a"\nkind = "still"\npath = "a.png"\ngsd_m_per_px = 0.1\nrecording_altitude_m = 50\n'
+    tracks = '[tracks]\npath = "a.txt"\nformat = "sdd"\nfps = 10\n'
+    answers = {}
+    for decl in (
+        "",
+        'annotated = ["vehicle"]\n',
+        'annotated = ["Person", "vehicle"]\n',
+        'annotated = ["all"]\n',
+    ):
+        (tmp_path / "a.toml").write_text(base + decl + tracks)
+        w = load_world(tmp_path / "a.toml")
+        assert w.has_objects
+        answers[decl.split("=")[-1].strip()] = tuple(w.answers(g) for g in ("person", "vehicle", "object"))
+    assert answers == {"": (False, False, False), '["vehicle"]': (False, True, False),
+                       '["Person", "vehicle"]': (True, True, True), '["all"]': (True, True, True)}  # fmt: skip
+    for bad, msg in (('annotated = ["dogs"]\n', "annotated: unknown class 'dogs'"),
+                     ('annotated = "vehicle"\n', "annotated must be a list")):  # fmt: skip
+        (tmp_path / "a.toml").write_text(base + bad + tracks)
+        with pytest.raises(FootageError, match=msg):
+            load_world(tmp_path / "a.toml")
+    assert load_world("synthetic").answers("object")  # exact by construction
+    shipped = {k: m for k, m in load_config_dir(CONFIGS).items() if not hasattr(m, "record_id")}
+    assert shipped and all(getattr(m, "annotated", None) for m in shipped.values()), "declare `annotated`"
+    assert shipped["interchange"].annotated == (
+        "moving object",
+    )  # motion only: no people or vehicles as such
+    assert shipped["songdo-00003"].annotated == ("vehicle",)
+
+
 @needs_sdd
 @pytest.mark.parametrize(
     ("name", "frames", "pedestrians"), [("sdd-deathcircle-4", 452, 10), ("sdd-nexus-5", 1062, 16)]
@@ -604,6 +641,7 @@ def test_a_tile_cache_keeps_the_footage_ground_truth(name: str, tmp_path: Path) 
                        show_progress=False)  # fmt: skip
     cache = load_world(str(res.folder), shared_dir=SHARED, config_dir=CONFIGS)
     assert cache.has_risk_map and src.has_risk_map and cache.has_objects == src.has_objects
+    assert cache.annotated == src.annotated and src.annotated  # what was looked for travels with the truth
     assert cache.has_objects, "the shipped footage has objects: the comparison below must compare some"
     # the video's first 8 frames (the cache holds those); the still's tracks over two minutes
     times = np.arange(0.0, 8 / 25.0, 0.02) if name == "interchange" else np.arange(0.0, 120.0, 2.1)

@@ -32,7 +32,7 @@ Row = dict[str, Any]
 def write_reports(camp: Campaign) -> None:
     out = camp.out_dir
     rows = camp.ordered_rows()
-    agg = aggregate(rows, camp.spec.criterion.describe())
+    agg = aggregate(rows, camp.spec.criterion.describe(), camp.spec.criterion)
     doc = {
         "schema": SCHEMA,
         "viva_sitl_version": __version__,

@@ -192,6 +192,8 @@ def _write_metadata(
     srt = meta.srt or (str(find_srt_sidecar(src) or ""))
     if srt:
         lines.append(f"srt = {_toml_value(srt)}")
+    if meta.annotated is not None:  # what the ground truth looked for travels with it
+        lines.append(f"annotated = {_toml_value(list(meta.annotated))}")
     if meta.annotations_path and meta.annotations_format is not None:
         lines += [
             "",
