@@ -389,6 +389,33 @@ def test_inprocess_pilots_end_to_end_pool_determinism_and_single_trial(tmp_path:
     assert rows_equal(k2.ordered_rows(), d.ordered_rows()[2:])
 
 
+SHARED = REPO.parent / "shared"
+
+
+@pytest.mark.skipif(
+    not (SHARED / "footage" / "interchange").is_dir(),
+    reason=f"{SHARED / 'footage' / 'interchange'} is absent",
+)
+def test_the_oracle_keeps_a_margin_off_the_ramps_of_interchange(tmp_path: Path) -> None:
+    """Trials 0 and 15 of the interchange spec: the oracle planned risk-3 cells at the edge of a risk-5 ramp and
+    touched down a few decimetres off, on the ramp. Planning on the map eroded by its landing error plus the
+    map's stated accuracy, it lands off risk >= 4 there (and on the synthetic field it still succeeds: the end to
+    end test above)."""
+    from viva_sitl.evaluation.pilots import OraclePilot
+
+    oracle = OraclePilot()
+    oracle.reset(draw_scenarios(short_spec())[0], load_world("interchange", shared_dir=SHARED))
+    assert oracle.margin_m() == pytest.approx(1.0 + 2.0)  # landing error + the map's stated accuracy_m
+    oracle.reset(draw_scenarios(short_spec())[0], load_world("synthetic"))
+    assert oracle.margin_m() == pytest.approx(1.0)  # the synthetic map is exact
+    spec = load_spec(SPEC_DIR / "interchange_emergency.toml")
+    camp = run_campaign(spec, "oracle", tmp_path / "oracle", jobs=1, only=[0, 15], progress=False)
+    rows = camp.ordered_rows()
+    assert [r["trial"] for r in rows] == [0, 15]
+    for r in rows:
+        assert r["end"] == "landed" and r["risk_level"] is not None and r["risk_level"] <= 3, r
+
+
 class MisbehavingPilot:
     """Trial 0: raises; trial 1: hangs inside act(); trial 2: never lands; trial 3: a good descend."""
 

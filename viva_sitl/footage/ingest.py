@@ -236,6 +236,8 @@ def _ground_truth_lines(meta: FootageMetadata) -> list[str]:
             out.append(f"raster = {_toml_value(r.raster)}")
         if r.notes:
             out.append(f"notes = {_toml_value(r.notes)}")
+        if r.accuracy_m is not None:
+            out.append(f"accuracy_m = {_toml_value(r.accuracy_m)}")
         if r.levels:
             out.append("levels = { " + ", ".join(f"{json.dumps(k)} = {v}" for k, v in r.levels) + " }")
         if r.objects:

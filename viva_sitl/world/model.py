@@ -47,6 +47,8 @@ from viva_sitl.world.risk import (
 )
 from viva_sitl.world.tracks import TrackInfo, TrackSource, TrackTable, analytic_tracks, build_tracks
 
+DEFAULT_RISK_ACCURACY_M = 2.0  # a risk map whose metadata states no accuracy_m
+
 
 @dataclass(frozen=True)
 class ObjectRisk:
@@ -79,6 +81,7 @@ class WorldModel:
         has_risk_map: bool = True,
         class_levels: dict[str, int] | None = None,
         annotated: frozenset[str] | None = None,
+        risk_accuracy_m: float = 0.0,
     ) -> None:
         self.name = name
         self.geometry = geometry
@@ -91,6 +94,8 @@ class WorldModel:
         self.class_levels = dict(class_levels or DEFAULT_CLASS_LEVELS)
         # the classes the object ground truth looked for (metadata `annotated`); empty: unknown, answers nothing
         self.annotated = frozenset(annotated or ()) if has_objects else frozenset()
+        # how far the risk map's edges may be off on the ground (metadata [risk] accuracy_m; planners keep it)
+        self.risk_accuracy_m = float(risk_accuracy_m)
         self._obj_level = np.array([self.object_risk[c].level for c in ObjectClass], np.uint8)
         self._obj_buffer = np.array([self.object_risk[c].buffer_m for c in ObjectClass], np.float64)
         # per presence row: the level it imposes and the squared reach (buffer + half its larger ground size)
@@ -158,6 +163,7 @@ class WorldModel:
                 else "none"
             )
             + f", default level {self.risk_map.default_level}",
+            "risk_accuracy_m": f"{self.risk_accuracy_m:g}",
             "annotated": ", ".join(sorted(self.annotated))
             or "not declared (person/vehicle/object scores unavailable)",
         }
@@ -247,8 +253,12 @@ def world_from_source(src: FootageSource, meta: FootageMetadata | None = None) -
         for cls_name, level, buffer_m in meta.risk.objects:
             object_risk[ObjectClass.parse(cls_name)] = ObjectRisk(level, buffer_m)
     annotated = frozenset({"all"}) if synthetic else frozenset(meta.annotated or ())
+    stated = meta.risk.accuracy_m if meta.risk is not None else None
+    # unstated: the synthetic field's map is exact (drawn from the same polygons); any other map is taken as
+    # good to DEFAULT_RISK_ACCURACY_M (a hand-drawn edge at a few px of GSD)
+    accuracy = stated if stated is not None else (0.0 if synthetic else DEFAULT_RISK_ACCURACY_M)
     return WorldModel(meta.name, src.geometry, tracks, risk, object_risk, synthetic or bool(sources), has_risk,
-                      levels, annotated)  # fmt: skip
+                      levels, annotated, accuracy)  # fmt: skip
 
 
 def load_world(
