@@ -310,12 +310,18 @@ def test_the_touchdown_figure_draws_the_risk_map_at_the_touchdown_times() -> Non
     panels = risk_panels(rows, lambda t: int(t * 10))  # 10 fps: same frame
     assert [(t, [r["trial"] for r in rs]) for t, rs in panels] == [(5.0, [0, 1]), (15.0, [2])]
     many = [row(k, 2.0 * k) for k in range(40)]
-    panels = risk_panels(many, lambda t: int(t * 30))
+    loop = 177  # a 177-frame clip at 25 fps: the panels are frames of the loop, not absolute times
+
+    def frame(t: float) -> int:
+        return int(t * 25) % loop
+
+    panels = risk_panels(many, frame)
     assert len(panels) == MAX_RISK_PANELS and sum(len(rs) for _, rs in panels) == 40
-    for t, rs in panels:  # each touchdown on its nearest panel
+    pf = [frame(t) for t, _ in panels]
+    for (_, rs), c in zip(panels, pf, strict=True):  # each touchdown on the panel of its nearest frame
         for r in rs:
-            tr = touchdown_footage_time_s(r)
-            assert abs(tr - t) == min(abs(tr - c) for c, _ in panels)
+            f = frame(touchdown_footage_time_s(r))
+            assert abs(f - c) == min(abs(f - other) for other in pf)
     assert risk_panels([row(0, 0.0, landed=False)], lambda t: 0) == []
 
 

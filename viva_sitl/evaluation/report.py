@@ -116,8 +116,8 @@ def risk_panels(
     rows: list[Row], frame_of: Any, max_panels: int = MAX_RISK_PANELS
 ) -> list[tuple[float, list[Row]]]:
     """Group the touchdowns by the footage frame they happened at (`frame_of(t) -> frame`): one panel per distinct
-    frame, drawn at that frame's time; more than max_panels: the panel times are max_panels of them spread over
-    the touchdowns (quantiles) and each touchdown goes to the nearest (same frame or not: the caption says so)."""
+    frame, drawn at that frame's time; more than max_panels: max_panels of those frames spread over them
+    (quantiles) and each touchdown goes to the panel of the nearest frame (the caption says so)."""
     times = sorted((touchdown_footage_time_s(r), r) for r in rows if r.get("touchdown_north_m") is not None)
     if not times:
         return []
@@ -126,11 +126,13 @@ def risk_panels(
         by_frame.setdefault(int(frame_of(t)), []).append((t, r))
     if len(by_frame) <= max_panels:
         return [(v[0][0], [r for _, r in v]) for _, v in sorted(by_frame.items(), key=lambda kv: kv[1][0][0])]
-    ts = np.array([t for t, _ in times])
-    centres = sorted({float(ts[int(round(q * (len(ts) - 1)))]) for q in np.linspace(0.0, 1.0, max_panels)})
-    panels: list[tuple[float, list[Row]]] = [(c, []) for c in centres]
-    for t, r in times:
-        panels[int(np.argmin([abs(t - c) for c in centres]))][1].append(r)
+    # more frames than panels: panels at max_panels frames spread over the touchdowns' frames (the footage loops,
+    # so frames, not absolute times), each touchdown on the panel of the nearest frame
+    frames = sorted(by_frame)
+    picks = sorted({frames[int(round(q * (len(frames) - 1)))] for q in np.linspace(0.0, 1.0, max_panels)})
+    panels: list[tuple[float, list[Row]]] = [(by_frame[f][0][0], []) for f in picks]
+    for f, v in by_frame.items():
+        panels[int(np.argmin([abs(f - c) for c in picks]))][1].extend(r for _, r in v)
     return [p for p in panels if p[1]]
 
 
