@@ -36,6 +36,7 @@ from viva_sitl.footage.synthetic import SyntheticField
 from viva_sitl.footage.synthetic_actors import DEFAULT_ACTORS, actor_position_ne_m
 from viva_sitl.footage.worldmeta import OBJECT_CLASS_LABELS
 from viva_sitl.world import PEOPLE, VEHICLES, ObjectClass, TrackSource, build_tracks, load_world
+from viva_sitl.world.annotate import motion_tracks
 from viva_sitl.world.risk import RiskPolygon, read_polygons, risk_map_from_polygons
 
 REPO = Path(__file__).resolve().parents[1]
@@ -360,6 +361,43 @@ def test_world_from_a_user_still_with_tracks_and_risk(tmp_path: Path) -> None:
     assert world.risk_at(n, e + 2.4, 0.7) == 4 and world.risk_at(n, e + 2.6, 0.7) == 1
 
 
+def test_annotated_classes_say_what_the_truth_can_answer(tmp_path: Path) -> None:
+    """`annotated` tells "nobody of that class here" from "nobody looked": undeclared answers nothing (older
+    metadata stays readable, conservatively), a declared class answers for itself, "object" needs people and
+    vehicles (or "all"); a bad value is one line; every shipped footage declares it."""
+    from viva_sitl.footage.metadata import load_config_dir
+
+    cv2.imwrite(str(tmp_path / "a.png"), np.full((300, 400, 3), 90, np.uint8))
+    (tmp_path / "a.txt").write_text('1 10 10 20 20 0 0 0 0 "Car"\n1 10 10 20 20 5 0 0 0 "Car"\n')
+    base = 'name = "a"\nkind = "still"\npath = "a.png"\ngsd_m_per_px = 0.1\nrecording_altitude_m = 50\n'
+    tracks = '[tracks]\npath = "a.txt"\nformat = "sdd"\nfps = 10\n'
+    answers = {}
+    for decl in (
+        "",
+        'annotated = ["vehicle"]\n',
+        'annotated = ["Person", "vehicle"]\n',
+        'annotated = ["all"]\n',
+    ):
+        (tmp_path / "a.toml").write_text(base + decl + tracks)
+        w = load_world(tmp_path / "a.toml")
+        assert w.has_objects
+        answers[decl.split("=")[-1].strip()] = tuple(w.answers(g) for g in ("person", "vehicle", "object"))
+    assert answers == {"": (False, False, False), '["vehicle"]': (False, True, False),
+                       '["Person", "vehicle"]': (True, True, True), '["all"]': (True, True, True)}  # fmt: skip
+    for bad, msg in (('annotated = ["dogs"]\n', "annotated: unknown class 'dogs'"),
+                     ('annotated = "vehicle"\n', "annotated must be a list")):  # fmt: skip
+        (tmp_path / "a.toml").write_text(base + bad + tracks)
+        with pytest.raises(FootageError, match=msg):
+            load_world(tmp_path / "a.toml")
+    assert load_world("synthetic").answers("object")  # exact by construction
+    shipped = {k: m for k, m in load_config_dir(CONFIGS).items() if not hasattr(m, "record_id")}
+    assert shipped and all(getattr(m, "annotated", None) for m in shipped.values()), "declare `annotated`"
+    assert shipped["interchange"].annotated == (
+        "moving object",
+    )  # motion only: no people or vehicles as such
+    assert shipped["songdo-00003"].annotated == ("vehicle",)
+
+
 @needs_sdd
 @pytest.mark.parametrize(
     ("name", "frames", "pedestrians"), [("sdd-deathcircle-4", 452, 10), ("sdd-nexus-5", 1062, 16)]
@@ -474,6 +512,32 @@ def test_annotate_motion_finds_the_moving_boxes(tmp_path: Path) -> None:
     world = load_world(clip)
     assert world.tracks.count_by_class().get("moving object", 0) >= 2
     assert all(t.derived for t in world.tracks.tracks)
+
+
+def test_annotate_motion_sees_the_objects_from_the_first_frame_of_the_loop(tmp_path: Path) -> None:
+    """The camera loops the clip, so frame 0 comes right after the last frame: the derivation must count the boxes
+    there like anywhere else (it primed the background with frame 0 itself, cars included, and found 0-2 of ~65
+    objects for the first ~0.5 s of every loop of the interchange clip)."""
+    clip = tmp_path / "boxes.mp4"
+    _moving_boxes_clip(clip, frames=60)
+    with open_footage(clip) as src:
+        rows = motion_tracks(src)
+    per_frame = [sum(r.frame == f for r in rows) for f in range(60)]
+    assert min(per_frame[:12]) == 2, per_frame  # both boxes from frame 0 on
+    assert max(per_frame) == 2
+
+
+def test_the_shipped_interchange_tracks_keep_their_count_across_the_loop_seam() -> None:
+    """The committed interchange.tracks.csv (derived by `footage annotate interchange`): over the first 0.5 s after
+    the loop seam the object count stays near the clip's typical count (it was 0-2 of a median 67)."""
+    rows = parse_viva(CONFIGS / "interchange.tracks.csv")
+    frames = max(r.frame for r in rows) + 1
+    count = np.bincount([r.frame for r in rows if not r.lost], minlength=frames)
+    typical = float(np.median(count))
+    assert typical > 40
+    head = count[: round(0.5 * 25)]  # 25 fps
+    assert head.min() >= 0.6 * typical, (head.tolist(), typical)
+    assert head[:3].min() >= 0.8 * typical, (head.tolist(), typical)  # the seam itself
 
 
 def test_annotate_detector_without_ultralytics_is_one_line(
@@ -604,6 +668,7 @@ def test_a_tile_cache_keeps_the_footage_ground_truth(name: str, tmp_path: Path) 
                        show_progress=False)  # fmt: skip
     cache = load_world(str(res.folder), shared_dir=SHARED, config_dir=CONFIGS)
     assert cache.has_risk_map and src.has_risk_map and cache.has_objects == src.has_objects
+    assert cache.annotated == src.annotated and src.annotated  # what was looked for travels with the truth
     assert cache.has_objects, "the shipped footage has objects: the comparison below must compare some"
     # the video's first 8 frames (the cache holds those); the still's tracks over two minutes
     times = np.arange(0.0, 8 / 25.0, 0.02) if name == "interchange" else np.arange(0.0, 120.0, 2.1)

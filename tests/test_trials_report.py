@@ -1,6 +1,6 @@
 """The trials reports a benchmark user reads (issue 8 §3): report.html of `trials run` and the output of `trials
-compare` show the object-distance scores (schema v2) with the values of results.json, "unavailable" (never 0) when
-the footage has no ground truth; `trials report` rewrites report.html; bad paths and pilots are one-line errors.
+compare` show the object-distance scores (schema v3) with the values of results.json, "n/a" (never 0) when
+the footage's ground truth cannot answer them; `trials report` rewrites report.html; bad paths and pilots are one-line errors.
 Real runs of the CLI over the synthetic field with the in-process `descend` / `oracle` pilots."""
 
 from __future__ import annotations
@@ -84,12 +84,12 @@ def _run(spec: Path, pilot: str, out: Path, n: int = 2, seed: int | None = None)
 
 def _value(cell: str) -> object:
     """A per-trial cell back to the results.json value it shows."""
-    return {"yes": True, "no": False, "unavailable": None, "—": None}.get(cell, cell)
+    return {"yes": True, "no": False, "n/a": None, "unscored": None, "—": None}.get(cell, cell)
 
 
 def _same(cell: str, v: object) -> bool:
     if isinstance(v, bool) or v is None:
-        return _value(cell) == v and (v is not None or cell in ("unavailable", "—"))
+        return _value(cell) == v and (v is not None or cell in ("n/a", "unscored", "—"))
     if isinstance(v, int | float):
         return float(cell) == v  # exact: the cell is the JSON number
     return cell == str(v)
@@ -236,8 +236,9 @@ def test_without_ground_truth_object_distances_are_unavailable_not_zero(
     for t, row in zip(page.records("trials"), a["rows"], strict=True):
         assert row["landed"] is True and row["gt_objects"] is False
         for key in (*OBJ, "dist_person_m", "min_dist_person_m", "risk_level"):
-            assert row[key] is None and t[key] == "unavailable", key
-        assert t["success"] == "—" and row["success"] is None  # the criterion needs ground truth
+            assert row[key] is None and t[key] == "n/a", key
+        assert t["success"] == "unscored" and row["success"] is None  # the criterion needs ground truth
+        assert t["criterion_unavailable"] == row["criterion_unavailable"] != ""
         assert float(t["touchdown_speed_m_s"]) == row["touchdown_speed_m_s"]
     sc = page.scores()
     for key in OBJ:
@@ -251,6 +252,77 @@ def test_without_ground_truth_object_distances_are_unavailable_not_zero(
     page = Tables((tmp_path / "cmp.html").read_text())
     assert page.scores()[OBJ[1]][1:] == ["0", "unavailable"]
     assert all(p[OBJ[1]] == "— / — / —" for p in page.records("pairs"))
+
+
+def test_report_success_intervals_counts_and_risk_distribution(runs: tuple[Path, Path]) -> None:
+    """The success line gives both 95 % intervals in one format (percent, "a–b %"), counts as counts ("Landed: k
+    of n trials"), a per-check table with the n/a count; the risk level is a distribution (trials per level and
+    the median), never a mean with an interval."""
+    import re
+
+    from viva_sitl.evaluation.report import render_html
+
+    _, b_dir = runs
+    doc = json.loads((b_dir / "results.json").read_text())
+    text = (b_dir / "report.html").read_text()
+    para = re.search(r"<p id='success'>(.*?)</p>", text, re.S)
+    assert para is not None
+    line = re.sub(r"<[^>]+>", "", para.group(1))
+    assert re.search(r"2 of 2 judged trials = 100\.0 % \(95 % CI \d+\.\d–100\.0 % Wilson; 100\.0–100\.0 % "
+                     r"bootstrap\)", line), line  # fmt: skip
+    assert "Landed: 2 of 2 trials." in line and "Landed: 1." not in line
+    checks = {str(tr["data-check"]): [t for _, t in cells] for tr, cells in Tables(text).tables["checks"]
+              if "data-check" in tr}  # fmt: skip
+    assert checks["min_dist_person_m"] == [
+        "min_dist_person_m",
+        "2",
+        "2",
+        "100.0 %",
+        checks["min_dist_person_m"][4],
+        "0",
+    ]
+    risk = Tables(text).scores()["risk_level"]
+    levels = doc["aggregate"]["scores"]["risk_level"]
+    assert "mean" not in levels and sum(levels["counts"].values()) == levels["n"] == 2
+    assert risk[2].startswith("trials per level 1: ") and risk[3] == f"{levels['median']:.3g}"
+    # an older results.json (risk level with a mean, no counts or checks) still renders
+    old = json.loads(json.dumps(doc))
+    old["aggregate"]["scores"]["risk_level"] = {"n": 2, "mean": 1.0, "mean_ci95": [1.0, 1.0], "median": 1.0,
+                                                "p10": 1.0, "p90": 1.0, "min": 1.0, "max": 1.0}  # fmt: skip
+    for k in ("checks", "landed", "success_unscored"):
+        old["aggregate"].pop(k)
+    assert "Landed: 2 of 2 trials." in render_html(old, b_dir)
+
+
+def test_the_touchdown_figure_draws_the_risk_map_at_the_touchdown_times() -> None:
+    """One panel per distinct footage frame of a touchdown, at that frame's time; beyond MAX_RISK_PANELS the panel
+    times spread over the touchdowns and each touchdown goes to the nearest."""
+    from viva_sitl.evaluation.report import MAX_RISK_PANELS, risk_panels, touchdown_footage_time_s
+
+    def row(k: int, t0: float, landed: bool = True) -> dict[str, object]:
+        return {"trial": k, "footage_time_s": t0, "land_at_s": 1.0, "time_to_land_s": 4.0 if landed else None,
+                "end_t_s": 9.0, "touchdown_north_m": 0.0 if landed else None}  # fmt: skip
+
+    rows = [row(0, 0.0), row(1, 0.05), row(2, 10.0), row(3, 3.0, landed=False)]
+    assert touchdown_footage_time_s(rows[2]) == 15.0
+    panels = risk_panels(rows, lambda t: int(t * 30))  # 30 fps: trials 0 and 1 touch down 1.5 frames apart
+    assert [(t, [r["trial"] for r in rs]) for t, rs in panels] == [(5.0, [0]), (5.05, [1]), (15.0, [2])]
+    panels = risk_panels(rows, lambda t: int(t * 10))  # 10 fps: same frame
+    assert [(t, [r["trial"] for r in rs]) for t, rs in panels] == [(5.0, [0, 1]), (15.0, [2])]
+    many = [row(k, 2.0 * k) for k in range(40)]
+    loop = 177  # a 177-frame clip at 25 fps: the panels are frames of the loop, not absolute times
+
+    def frame(t: float) -> int:
+        return int(t * 25) % loop
+
+    panels = risk_panels(many, frame)
+    assert len(panels) == MAX_RISK_PANELS and sum(len(rs) for _, rs in panels) == 40
+    pf = [frame(t) for t, _ in panels]
+    for (_, rs), c in zip(panels, pf, strict=True):  # each touchdown on the panel of its nearest frame
+        for r in rs:
+            f = frame(touchdown_footage_time_s(r))
+            assert abs(f - c) == min(abs(f - other) for other in pf)
+    assert risk_panels([row(0, 0.0, landed=False)], lambda t: 0) == []
 
 
 def test_bad_paths_and_pilots_are_one_line(tmp_path: Path) -> None:

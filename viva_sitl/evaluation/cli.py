@@ -134,7 +134,10 @@ def _print_summary(doc: dict[str, Any]) -> None:
         "time_to_land_s",
     ):
         st = agg["scores"][key]
-        if st["n"]:
+        if st["n"] and "counts" in st:  # ordinal (risk level): the distribution, never a mean
+            levels = ", ".join(f"{lv}: {c}" for lv, c in st["counts"].items())
+            print(f"  {key}: trials per level {levels}; median {st['median']}, n {st['n']}")
+        elif st["n"]:
             print(f"  {key}: mean {st['mean']} (95 % CI {st['mean_ci95'][0]}..{st['mean_ci95'][1]}), "
                   f"median {st['median']}, n {st['n']}")  # fmt: skip
         else:

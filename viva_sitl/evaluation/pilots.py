@@ -16,7 +16,9 @@
 else is an external program (see external.py).
 
 Built-ins: `descend` lands straight down where it is (what a plain failsafe does); `oracle` knows the ground truth
-and flies to the lowest-risk reachable spot farthest from people before landing (an upper bound for the others).
+and flies to the lowest-risk reachable spot farthest from people before landing, keeping a margin for its own
+landing error and the risk map's accuracy (a reference for the others: it still flies what it planned, with
+the errors that come with it).
 """
 
 from __future__ import annotations
@@ -151,7 +153,13 @@ class OraclePilot:
     """Knows the ground truth. At "land now" it scores every spot on a grid within reach (search_radius_m, inside
     the footage): lowest risk level over the time it would take to get there and land, then the largest distance
     to people and vehicles over that window, then the shortest flight; flies there in Hold at its altitude and
-    lands. An upper bound for honest pilots, not a pilot one could build."""
+    lands. Not a pilot one could build.
+
+    A spot's risk is the highest level within `margin_m()` of it (the risk map eroded by the margin): its landing
+    error (`landing_error_m`: the 0.5 m arrival gate below plus the drift of the descent; measured 0.31 m on the
+    interchange trial that landed on a ramp) plus the map's stated accuracy (WorldModel.risk_accuracy_m, from the
+    footage's [risk] accuracy_m). Without it the plan took risk-3 cells at a polygon's edge and the touchdown, a
+    few decimetres off, fell on the risk-5 side."""
 
     name: str = "oracle"
     control_hz: float = 5.0
@@ -161,12 +169,20 @@ class OraclePilot:
     grid_m: float = 2.0
     cruise_m_s: float = 5.0  # the speed it assumes for the plan (MPC_XY_CRUISE default)
     land_speed_m_s: float = 0.7  # MPC_LAND_SPEED default, for the plan
+    landing_error_m: float = (
+        1.0  # touchdown vs planned spot: 0.5 m arrival gate + descent drift (0.31 m measured)
+    )
     _s: dict[str, Any] = field(default_factory=dict)
     _world: WorldModel | None = None
 
     def reset(self, scenario: Scenario, truth: WorldModel | None) -> None:
         self._s = {}
         self._world = truth
+
+    def margin_m(self) -> float:
+        """How far from a higher-risk cell a planned spot must be: landing error + the risk map's accuracy."""
+        acc = self._world.risk_accuracy_m if self._world is not None else 0.0
+        return self.landing_error_m + acc
 
     def plan(self, north_m: float, east_m: float, altitude_m: float, t_s: float, footage_t0_s: float,
              inside: Any) -> tuple[float, float]:  # fmt: skip
@@ -187,6 +203,12 @@ class OraclePilot:
         dist = np.hypot(n - north_m, e - east_m)
         t_arrive = t_s + dist / self.cruise_m_s + 2.0
         t_land = t_arrive + altitude_m / self.land_speed_m_s + 2.0
+        # the margin: a spot's risk is the worst within margin_m of it (centre, two rings of 12)
+        m = self.margin_m()
+        ang = np.linspace(0.0, 2.0 * np.pi, 12, endpoint=False)
+        rad = np.array([0.0] + [m / 2] * 12 + [m] * 12) if m > 0 else np.zeros(1)
+        off_n = rad * np.cos(np.concatenate([[0.0], ang, ang + np.pi / 12]))
+        off_e = rad * np.sin(np.concatenate([[0.0], ang, ang + np.pi / 12]))
         # risk and distances at a few times across [arrival, touchdown + a margin], worst case
         risk = np.zeros(n.size, np.uint8)
         dmin = np.full(n.size, np.inf)
@@ -195,7 +217,10 @@ class OraclePilot:
             for k in np.unique(np.round(tt, 1)):
                 sel = np.round(tt, 1) == k
                 ft = float(k) + footage_t0_s
-                risk[sel] = np.maximum(risk[sel], w.risk_levels_at(n[sel], e[sel], ft))
+                pn = (n[sel][:, None] + off_n[None, :]).ravel()
+                pe = (e[sel][:, None] + off_e[None, :]).ravel()
+                worst = w.risk_levels_at(pn, pe, ft).reshape(-1, off_n.size).max(axis=1)
+                risk[sel] = np.maximum(risk[sel], worst)
                 if w.has_objects:
                     tvec = np.full(int(sel.sum()), ft)
                     dp = w.tracks.distances_along(n[sel], e[sel], tvec, PEOPLE)

@@ -22,13 +22,14 @@ import numpy as np
 from viva_sitl import __version__
 from viva_sitl.evaluation.results import Campaign, Row, is_infra
 from viva_sitl.evaluation.scoring import COLUMNS, OLDER_SCHEMAS, SCHEMA
+from viva_sitl.evaluation.spec import Criterion
 from viva_sitl.evaluation.stats import aggregate, paired
 
 
 def write_reports(camp: Campaign) -> None:
     out = camp.out_dir
     rows = camp.ordered_rows()
-    agg = infra_aggregate(rows, camp.spec.criterion.describe())
+    agg = infra_aggregate(rows, camp.spec.criterion.describe(), camp.spec.criterion)
     doc = {
         "schema": SCHEMA,
         "viva_sitl_version": __version__,
@@ -58,12 +59,12 @@ def write_reports(camp: Campaign) -> None:
     (out / "report.html").write_text(render_html(doc, out))
 
 
-def infra_aggregate(rows: list[Row], criterion: str) -> dict[str, Any]:
+def infra_aggregate(rows: list[Row], criterion: str, crit: Criterion | None = None) -> dict[str, Any]:
     """The aggregate over the trials that flew: infrastructure errors (results.INFRA_ENDS, the harness's failure,
     not the pilot's) are left out of the success rate and the scores and counted in `infra_errors`; `ends` still
     counts every trial."""
     infra = [r for r in rows if is_infra(r)]
-    agg = aggregate([r for r in rows if not is_infra(r)], criterion)
+    agg = aggregate([r for r in rows if not is_infra(r)], criterion, crit)
     ends: dict[str, int] = {}
     for r in rows:
         ends[str(r.get("end"))] = ends.get(str(r.get("end")), 0) + 1
@@ -127,8 +128,44 @@ def _outcome_color(r: Row) -> str:
     return "#808080"
 
 
+MAX_RISK_PANELS = 6  # the touchdown figure draws the risk map at most at this many footage times
+
+
+def touchdown_footage_time_s(r: Row) -> float:
+    """The footage clock at touchdown (trial time: "land now" + time to land; else the end)."""
+    if r.get("time_to_land_s") is not None and r.get("land_at_s") is not None:
+        return float(r["footage_time_s"]) + float(r["land_at_s"]) + float(r["time_to_land_s"])
+    return float(r["footage_time_s"]) + float(r.get("end_t_s") or 0.0)
+
+
+def risk_panels(
+    rows: list[Row], frame_of: Any, max_panels: int = MAX_RISK_PANELS
+) -> list[tuple[float, list[Row]]]:
+    """Group the touchdowns by the footage frame they happened at (`frame_of(t) -> frame`): one panel per distinct
+    frame, drawn at that frame's time; more than max_panels: max_panels of those frames spread over them
+    (quantiles) and each touchdown goes to the panel of the nearest frame (the caption says so)."""
+    times = sorted((touchdown_footage_time_s(r), r) for r in rows if r.get("touchdown_north_m") is not None)
+    if not times:
+        return []
+    by_frame: dict[int, list[tuple[float, Row]]] = {}
+    for t, r in times:
+        by_frame.setdefault(int(frame_of(t)), []).append((t, r))
+    if len(by_frame) <= max_panels:
+        return [(v[0][0], [r for _, r in v]) for _, v in sorted(by_frame.items(), key=lambda kv: kv[1][0][0])]
+    # more frames than panels: panels at max_panels frames spread over the touchdowns' frames (the footage loops,
+    # so frames, not absolute times), each touchdown on the panel of the nearest frame
+    frames = sorted(by_frame)
+    picks = sorted({frames[int(round(q * (len(frames) - 1)))] for q in np.linspace(0.0, 1.0, max_panels)})
+    panels: list[tuple[float, list[Row]]] = [(by_frame[f][0][0], []) for f in picks]
+    for f, v in by_frame.items():
+        panels[int(np.argmin([abs(f - c) for c in picks]))][1].extend(r for _, r in v)
+    return [p for p in panels if p[1]]
+
+
 def figure_touchdowns(doc: dict[str, Any], out_dir: Path, footage: str) -> str | None:
-    """Touchdown points (and start points) over the footage overview with the risk map, coloured by outcome."""
+    """Touchdown points (and start points) over the footage overview with the risk map drawn at the touchdown
+    times (small multiples: one panel per distinct footage frame of a touchdown, at most MAX_RISK_PANELS),
+    coloured by outcome."""
     import cv2
     import matplotlib
 
@@ -144,11 +181,18 @@ def figure_touchdowns(doc: dict[str, Any], out_dir: Path, footage: str) -> str |
         return None
     with open_footage(footage) as src:
         world = world_from_source(src)
-        t_ref = float(np.median([r["footage_time_s"] + (r["end_t_s"] or 0.0) for r in rows]))
-        img = render_overview(world, src, t_ref, max_size_px=1000, show_ids=False)
+        panels = risk_panels(rows, world.tracks.frame_at)
+        exact = len(
+            {world.tracks.frame_at(touchdown_footage_time_s(r)) for _, rs in panels for r in rs}
+        ) == len(panels)
+        if not panels:  # no touchdown at all: the starts over the map at the first trial's start time
+            panels = [(float(rows[0]["footage_time_s"]), [])]
+        px = 1000 if len(panels) == 1 else 600
+        imgs = [render_overview(world, src, t, max_size_px=px, show_ids=False) for t, _ in panels]
         g = src.geometry
-    s = img.shape[1] / g.width_px
-    traj_xy: list[np.ndarray] = []
+    img0 = imgs[0]
+    s = img0.shape[1] / g.width_px
+    traj_xy: dict[int, np.ndarray] = {}
     for r in rows:
         p = out_dir / "trials" / f"{int(r['trial']):04d}" / "trial_trajectory.csv"
         try:
@@ -157,24 +201,44 @@ def figure_touchdowns(doc: dict[str, Any], out_dir: Path, footage: str) -> str |
             continue
         a = np.atleast_2d(a)
         if a.size:
-            px = np.array([g.ned_to_px(n, e) for n, e in a[:: max(1, len(a) // 200)]])
-            traj_xy.append((px + 0.5) * s - 0.5)
-    fig, ax = plt.subplots(figsize=(8, 8 * img.shape[0] / img.shape[1] + 0.6))
-    ax.imshow(cv2.cvtColor(img, cv2.COLOR_BGR2RGB))
-    for xy in traj_xy:
-        ax.plot(xy[:, 0], xy[:, 1], color="white", lw=0.6, alpha=0.6)
-    for r in rows:
-        u0, v0 = g.ned_to_px(r["start_north_m"], r["start_east_m"])
-        ax.plot((u0 + 0.5) * s - 0.5, (v0 + 0.5) * s - 0.5, marker="^", ms=4, color="white", alpha=0.8)
-        if r.get("touchdown_north_m") is None:
-            continue
-        u, v = g.ned_to_px(r["touchdown_north_m"], r["touchdown_east_m"])
-        ax.plot((u + 0.5) * s - 0.5, (v + 0.5) * s - 0.5, marker="o", ms=7, mec="black", mew=0.8,
-                color=_outcome_color(r))  # fmt: skip
-        ax.annotate(str(r["trial"]), ((u + 0.5) * s + 4, (v + 0.5) * s - 4), color="white", fontsize=7)
-    ax.set_title(f"{footage}: touchdowns (green success, red failure, grey unjudged), starts ^, "
-                 f"risk map at t={t_ref:.0f} s", fontsize=9)  # fmt: skip
-    ax.set_axis_off()
+            pxy = np.array([g.ned_to_px(n, e) for n, e in a[:: max(1, len(a) // 200)]])
+            traj_xy[int(r["trial"])] = (pxy + 0.5) * s - 0.5
+    cols = min(3, len(panels))
+    nrows = (len(panels) + cols - 1) // cols
+    aspect = img0.shape[0] / img0.shape[1]
+    fig, axes = plt.subplots(nrows, cols, figsize=(8 if cols == 1 else 5 * cols, (8 if cols == 1 else 5) * nrows * aspect + 0.8),
+                             squeeze=False)  # fmt: skip
+    in_panel = {int(r["trial"]) for _, rs in panels for r in rs}
+    for ax, img, (t, prs) in zip(axes.ravel(), imgs, panels, strict=False):
+        ax.imshow(cv2.cvtColor(img, cv2.COLOR_BGR2RGB))
+        shown = prs if in_panel else rows  # no touchdowns: every start on the one panel
+        for r in shown:
+            xy = traj_xy.get(int(r["trial"]))
+            if xy is not None:
+                ax.plot(xy[:, 0], xy[:, 1], color="white", lw=0.6, alpha=0.6)
+            u0, v0 = g.ned_to_px(r["start_north_m"], r["start_east_m"])
+            ax.plot((u0 + 0.5) * s - 0.5, (v0 + 0.5) * s - 0.5, marker="^", ms=4, color="white", alpha=0.8)
+            if r.get("touchdown_north_m") is None:
+                continue
+            u, v = g.ned_to_px(r["touchdown_north_m"], r["touchdown_east_m"])
+            ax.plot((u + 0.5) * s - 0.5, (v + 0.5) * s - 0.5, marker="o", ms=7, mec="black", mew=0.8,
+                    color=_outcome_color(r))  # fmt: skip
+            ax.annotate(str(r["trial"]), ((u + 0.5) * s + 4, (v + 0.5) * s - 4), color="white", fontsize=7)
+        trials = ", ".join(str(r["trial"]) for r in prs)
+        ax.set_title(
+            f"risk map at footage t = {t:.2f} s" + (f": trials {trials}" if trials else ""), fontsize=8
+        )
+        ax.set_axis_off()
+    for ax in axes.ravel()[len(panels) :]:
+        ax.set_axis_off()
+    note = (
+        "each panel: the touchdowns at that footage frame"
+        if exact
+        else (f"more than {MAX_RISK_PANELS} touchdown frames: each touchdown on the panel nearest its time")
+    )
+    fig.suptitle(
+        f"{footage}: touchdowns (green success, red failure, grey unscored), starts ^; {note}", fontsize=9
+    )
     return _png(fig)
 
 
@@ -215,6 +279,50 @@ def figure_distributions(rows: list[Row], criterion: dict[str, Any] | None) -> s
     return _png(fig)
 
 
+def _pct(lo_hi: list[float | None] | None) -> str:
+    """A 95 % interval of a proportion in percent, one style for every method: "a–b %"."""
+    if not lo_hi or lo_hi[0] is None or lo_hi[1] is None:
+        return "—"
+    return f"{100 * lo_hi[0]:.1f}–{100 * lo_hi[1]:.1f} %"
+
+
+def _success_section(agg: dict[str, Any], spec: dict[str, Any], n_rows: int) -> list[str]:
+    """Success over the judged trials (Wilson and bootstrap intervals, both in percent), the unscored trials,
+    the landed count, the ends, and each check's rate over the trials that could judge it."""
+    rate = agg["success_rate"]
+    landed = agg.get("landed")
+    if landed is None and agg.get("landed_rate") is not None:  # results written before the count was kept
+        landed = round(agg["landed_rate"] * n_rows)
+    unscored = agg.get("success_unscored", n_rows - agg["success_judged"])
+    text = (f"<h2>Success</h2><p id='success'>Criterion <b>{html.escape(agg['criterion'])}</b> (minimum distance "
+            f"over the final descent below {spec['final_descent_below_m']:g} m): ")  # fmt: skip
+    if rate is not None:
+        text += (f"<b>{agg['success']} of {agg['success_judged']} judged trials = {100 * rate:.1f} %</b> (95 % CI "
+                 f"{_pct(agg['success_rate_ci95_wilson'])} Wilson; {_pct(agg['success_rate_ci95_bootstrap'])} "
+                 "bootstrap)")  # fmt: skip
+    else:
+        text += "<b>unavailable</b> (no trial could be judged)"
+    if unscored:
+        text += (f"; <b>{unscored} unscored</b> (no check failed but one could not be judged: see "
+                 "<code>criterion_unavailable</code>; not counted as successes nor failures)")  # fmt: skip
+    text += (f". Landed: {landed if landed is not None else '—'} of {n_rows} trials. Ends: "
+             + ", ".join(f"{k} {v}" for k, v in agg["ends"].items()) + ".</p>")  # fmt: skip
+    out = [text]
+    checks = agg.get("checks")
+    if checks:
+        out.append("<div class='scroll'><table id='checks'><tr><th class='l'>check</th><th>passed</th>"
+                   "<th>judged</th><th>rate</th><th>95 % CI (Wilson)</th><th>n/a (unavailable)</th></tr>")  # fmt: skip
+        for name, c in checks.items():
+            rate_c = "n/a" if c["rate"] is None else f"{100 * c['rate']:.1f} %"
+            out.append(f"<tr data-check='{html.escape(name)}'><td class='l'>{html.escape(name)}</td>"
+                       f"<td>{c['passed']}</td><td>{c['judged']}</td><td>{rate_c}</td>"
+                       f"<td>{_pct(c['rate_ci95_wilson'])}</td><td>{c['unavailable']}</td></tr>")  # fmt: skip
+        out.append("</table></div><p>Each check over the trials that could judge it; <i>n/a</i>: the footage's "
+                   "ground truth cannot answer it (no tracks or risk map, or the class was not annotated: see "
+                   "the footage metadata's <code>annotated</code>).</p>")  # fmt: skip
+    return out
+
+
 def _fmt(v: Any) -> str:
     if v is None:
         return "—"
@@ -243,18 +351,8 @@ def render_html(doc: dict[str, Any], out_dir: Path) -> str:
              f"<a href='results.json'>results.json</a>, <a href='results.csv'>results.csv</a> "
              f"(schema <code>{doc['schema']}</code>).</p>"]  # fmt: skip
     parts.append(_provenance_html(doc))
-    rate = agg["success_rate"]
-    ci = agg["success_rate_ci95_wilson"]
-    parts.append(
-        f"<h2>Success</h2><p>Criterion <b>{html.escape(agg['criterion'])}</b> (minimum distance over the final "
-        f"descent below {spec['final_descent_below_m']:g} m): "
-        + (f"<b>{agg['success']}/{agg['success_judged']} = {100 * rate:.1f} %</b> (95 % CI {100 * ci[0]:.1f}–"
-           f"{100 * ci[1]:.1f} %, Wilson; bootstrap {agg['success_rate_ci95_bootstrap']})" if rate is not None
-           else "<b>unavailable</b> (no trial flew)" if agg.get("n") == 0 and rows
-           else "<b>unavailable</b> (no ground truth for these footages)")
-        + f". Landed: {_fmt(agg['landed_rate'])}. Ends: "
-        + ", ".join(f"{k} {v}" for k, v in agg["ends"].items()) + ".</p>"
-    )  # fmt: skip
+    n_flown = len(rows) - int((agg.get("infra_errors") or {}).get("n", 0))
+    parts.extend(_success_section(agg, spec, n_flown))
     infra = infra_line(agg)
     if infra is not None:
         parts.append(f"<p class='bad' id='infra'>{html.escape(infra)}: left out of the success rate and the "
@@ -263,10 +361,17 @@ def render_html(doc: dict[str, Any], out_dir: Path) -> str:
                  "needs the footage's object tracks and an object of that class in them, touchdown scores a "
                  "touchdown); <i>unavailable</i> = no trial has it, never 0. <code>dist_*</code>: at touchdown, "
                  "<code>min_dist_*</code>: minimum over the final descent; <code>*_object_m</code>: the nearest "
-                 "tracked object of any class, motion-derived tracks included.</p>"
+                 "tracked object of any class, motion-derived tracks included. <code>risk_level</code> is ordinal: trials per "
+                 "level and the median, no mean.</p>"
                  "<div class='scroll'><table id='scores'><tr><th class='l'>score</th><th>n</th><th>mean</th><th>95 % CI (bootstrap)</th>"
                  "<th>median</th><th>p10</th><th>p90</th><th>min</th><th>max</th></tr>")  # fmt: skip
     for key, s in agg["scores"].items():
+        if s["n"] and "counts" in s:  # ordinal (risk level): trials per level and the median, never a mean
+            dist = ", ".join(f"{lv}: {c}" for lv, c in s["counts"].items())
+            parts.append(f"<tr data-score='{key}'><td class='l'>{key}</td><td>{s['n']}</td>"
+                         f"<td colspan=2 class='l'>trials per level {dist}</td><td>{_fmt(s['median'])}</td>"
+                         f"<td>—</td><td>—</td><td>{_fmt(s['min'])}</td><td>{_fmt(s['max'])}</td></tr>")  # fmt: skip
+            continue
         if s["n"] == 0:
             parts.append(
                 f"<tr data-score='{key}'><td class='l'>{key}</td><td>0</td>"
@@ -344,18 +449,33 @@ def _provenance_html(doc: dict[str, Any]) -> str:
 TRIAL_TABLE_COLUMNS = (
     "trial", "footage", "end", "landed", "success", "touchdown_speed_m_s", "dist_person_m", "min_dist_person_m",
     "dist_vehicle_m", "min_dist_vehicle_m", "dist_object_m", "min_dist_object_m", "risk_level", "time_to_land_s",
-    "path_length_m", "energy_wh", "criterion_failures",
+    "path_length_m", "energy_wh", "criterion_failures", "criterion_unavailable",
 )  # fmt: skip
-_LEFT = {"footage", "end", "criterion_failures"}
+_LEFT = {"footage", "end", "criterion_failures", "criterion_unavailable"}
+
+
+_PRESENT = {"person": "persons_present", "vehicle": "vehicles_present", "object": "objects_present"}
+
+
+def unavailable(r: Row, key: str) -> bool:
+    """A null score the footage's ground truth cannot answer: no tracks / risk map, or the class not annotated."""
+    if key == "risk_level":
+        return not r.get("gt_risk")
+    if "dist_" in key:
+        group = key.rsplit("_", 2)[-2]  # dist_person_m -> person
+        return not r.get("gt_objects") or r.get(_PRESENT.get(group, "")) is None
+    return False
 
 
 def _cell(r: Row, key: str) -> str:
-    """One per-trial cell: the exact value; null is "unavailable" when the footage has no ground truth of the
-    kind the score needs, "—" when it has but the score does not apply (no touchdown, nobody of that class)."""
+    """One per-trial cell: the exact value; null is "n/a" when the footage's ground truth cannot answer it (no
+    ground truth of that kind, or the class was not annotated), "—" when it can but the score does not apply
+    (no touchdown, nobody of that class); success null is "unscored"."""
     v = r.get(key)
     if v is None:
-        gt = {"risk_level": "gt_risk"}.get(key, "gt_objects" if "dist_" in key else None)
-        return "unavailable" if gt is not None and not r.get(gt) else "—"
+        if key == "success":
+            return "unscored"
+        return "n/a" if unavailable(r, key) else "—"
     if isinstance(v, bool):
         return "yes" if v else "no"
     if isinstance(v, float):
@@ -365,8 +485,10 @@ def _cell(r: Row, key: str) -> str:
 
 def _all_trials_table(rows: list[Row]) -> list[str]:
     out = ["<h2>All trials</h2><p>One row per trial (as in <a href='results.csv'>results.csv</a>; units in the "
-           "column names). <i>unavailable</i>: the footage has no ground truth for that score; —: it does not "
-           "apply (no touchdown, nobody of that class in the footage).</p><div class='scroll'><table id='trials'><tr>"
+           "column names). <i>n/a</i>: the footage's ground truth cannot answer that score (none of that kind, "
+           "or the class was not annotated); —: it does not apply (no touchdown, nobody of that class in the "
+           "footage); <i>unscored</i>: no check failed but one was n/a (<code>criterion_unavailable</code> says "
+           "which).</p><div class='scroll'><table id='trials'><tr>"
            + "".join(f"<th{' class=l' if k in _LEFT else ''} data-col='{k}'>{k}</th>" for k in TRIAL_TABLE_COLUMNS)
            + "</tr>"]  # fmt: skip
     for r in rows:

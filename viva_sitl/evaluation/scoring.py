@@ -14,26 +14,34 @@ null = unavailable, never zero):
     touchdown_north_m, touchdown_east_m                 the last touchdown (null: none)
     touchdown_vertical_speed_m_s, touchdown_horizontal_speed_m_s, touchdown_speed_m_s   the step before contact
     dist_person_m, dist_vehicle_m                       horizontal distance to the nearest person / vehicle at
-                                                        touchdown (null: no ground truth; -1 never: none present
-                                                        -> null too, see gt_objects and the *_present columns)
+                                                        touchdown (null: no touchdown, nobody of that class in the
+                                                        footage, or the class was not annotated: the footage
+                                                        metadata's `annotated` list does not name it)
     min_dist_person_m, min_dist_vehicle_m               minimum over the final descent (below
                                                         final_descent_below_m above ground, to touchdown or end)
     dist_object_m, min_dist_object_m                    the same to the nearest tracked object of any class:
                                                         people, vehicles, "other" and the motion-derived tracks
-                                                        of `footage annotate --method motion` ("moving object",
-                                                        class unknown: counted here, not as people or vehicles)
+                                                        of `footage annotate --method motion` ("moving object");
+                                                        available only where people and vehicles were both
+                                                        annotated (or "all")
     risk_level                                          1..5 under the touchdown point at touchdown time
     time_to_land_s                                      touchdown - "land now" (null: no touchdown)
     flight_time_s, path_length_m, energy_wh, time_outside_footage_s
     failsafes, failsafe_texts                           count and "; "-joined texts of failsafe events
     gt_objects, gt_risk                                 the footage has object tracks / a risk map
-    persons_present, vehicles_present, objects_present  any person / vehicle / object in the footage's tracks
-    success                                             the criterion (null when a score it needs is unavailable)
+    persons_present, vehicles_present, objects_present  any person / vehicle / object in the footage's tracks (null:
+                                                        no tracks, or that class was not annotated: unknown)
+    success                                             the criterion: false when a check it could judge failed;
+                                                        null ("unscored") when none failed but one could not be
+                                                        judged (its score unavailable); true only when every check
+                                                        was judged and passed
     criterion_failures                                  which checks failed ("; "-joined)
+    criterion_unavailable                               which checks could not be judged, and why ("; "-joined)
     wall_s                                              wall time of the trial (the only non-deterministic column)
 
-v2 (from v1): + dist_object_m, min_dist_object_m, objects_present. report.read_results reads v1 files too (the new
-columns null).
+v2 (from v1): + dist_object_m, min_dist_object_m, objects_present. v3 (from v2): + criterion_unavailable; person /
+vehicle / object scores and *_present are null where the footage did not annotate the class (v2 said "none
+present" and passed the criterion). report.read_results reads v1 and v2 files too (the new columns null).
 """
 
 from __future__ import annotations
@@ -47,8 +55,8 @@ from viva_sitl.evaluation.monitor import TRAJECTORY_COLUMNS, TrialLog
 from viva_sitl.evaluation.spec import Criterion, Scenario, TrialSpec
 from viva_sitl.world import ALL, PEOPLE, VEHICLES, WorldModel
 
-SCHEMA = "vivasitl.trials.v2"
-OLDER_SCHEMAS = ("vivasitl.trials.v1",)  # readable: rows lack the columns added since
+SCHEMA = "vivasitl.trials.v3"
+OLDER_SCHEMAS = ("vivasitl.trials.v1", "vivasitl.trials.v2")  # readable: rows lack the columns added since
 COLUMNS = (
     "trial", "pilot", "seed", "footage", "start", "start_north_m", "start_east_m", "start_altitude_m",
     "start_yaw_deg", "footage_time_s", "land_at_s", "wind_speed_m_s", "failures", "end", "end_detail", "end_t_s",
@@ -56,7 +64,7 @@ COLUMNS = (
     "touchdown_horizontal_speed_m_s", "touchdown_speed_m_s", "dist_person_m", "dist_vehicle_m", "min_dist_person_m",
     "min_dist_vehicle_m", "dist_object_m", "min_dist_object_m", "risk_level", "time_to_land_s", "flight_time_s",
     "path_length_m", "energy_wh", "time_outside_footage_s", "failsafes", "failsafe_texts", "gt_objects", "gt_risk", "persons_present",
-    "vehicles_present", "objects_present", "success", "criterion_failures", "wall_s",
+    "vehicles_present", "objects_present", "success", "criterion_failures", "criterion_unavailable", "wall_s",
 )  # fmt: skip
 _I = {c: k for k, c in enumerate(TRAJECTORY_COLUMNS)}
 
@@ -91,12 +99,17 @@ def score_trial(
     gt_obj = world is not None and world.has_objects
     gt_risk = world is not None and world.has_risk_map
     row["gt_objects"], row["gt_risk"] = gt_obj, gt_risk
+    # which groups the object ground truth can answer (annotated classes): the others stay null (unknown)
+    ans = {g: gt_obj and world is not None and world.answers(g) for g in ("person", "vehicle", "object")}
     if gt_obj:
         assert world is not None
         counts = world.tracks.count_by_class()
-        row["persons_present"] = any(k in ("person", "bicycle") and v > 0 for k, v in counts.items())
-        row["vehicles_present"] = any(k in ("car", "bus", "truck") and v > 0 for k, v in counts.items())
-        row["objects_present"] = any(v > 0 for v in counts.values())
+        if ans["person"]:
+            row["persons_present"] = any(k in ("person", "bicycle") and v > 0 for k, v in counts.items())
+        if ans["vehicle"]:
+            row["vehicles_present"] = any(k in ("car", "bus", "truck") and v > 0 for k, v in counts.items())
+        if ans["object"]:
+            row["objects_present"] = any(v > 0 for v in counts.values())
     td = log.touchdown
     if td is not None:
         row.update(
@@ -122,57 +135,84 @@ def score_trial(
         if td is not None:
             seg = np.vstack([seg, [[td.t_s, td.north_m, td.east_m, 0.0]]])
         ft = seg[:, 0] + sc.footage_time_s  # footage clock
-        if gt_obj and seg.size:
-            row["min_dist_person_m"] = _r(_dist(world, seg[:, 1], seg[:, 2], ft, PEOPLE), 3)
-            row["min_dist_vehicle_m"] = _r(_dist(world, seg[:, 1], seg[:, 2], ft, VEHICLES), 3)
-            row["min_dist_object_m"] = _r(_dist(world, seg[:, 1], seg[:, 2], ft, ALL), 3)
+        groups = [
+            (g, cls) for g, cls in (("person", PEOPLE), ("vehicle", VEHICLES), ("object", ALL)) if ans[g]
+        ]
+        if seg.size:
+            for g, cls in groups:
+                row[f"min_dist_{g}_m"] = _r(_dist(world, seg[:, 1], seg[:, 2], ft, cls), 3)
         if td is not None:
             tft = td.t_s + sc.footage_time_s
-            if gt_obj:
-                row["dist_person_m"] = _r(world.tracks.distance_m(td.north_m, td.east_m, tft, PEOPLE), 3)
-                row["dist_vehicle_m"] = _r(world.tracks.distance_m(td.north_m, td.east_m, tft, VEHICLES), 3)
-                row["dist_object_m"] = _r(world.tracks.distance_m(td.north_m, td.east_m, tft, ALL), 3)
+            for g, cls in groups:
+                row[f"dist_{g}_m"] = _r(world.tracks.distance_m(td.north_m, td.east_m, tft, cls), 3)
             if gt_risk:
                 row["risk_level"] = int(world.risk_at(td.north_m, td.east_m, tft))
-    row["success"], fails = judge(row, spec.criterion)
+    row["success"], fails, unknown = judge_checks(row, spec.criterion)
     row["criterion_failures"] = "; ".join(fails)
+    row["criterion_unavailable"] = "; ".join(unknown)
     return row
 
 
-def judge(row: dict[str, Any], c: Criterion) -> tuple[bool | None, list[str]]:
-    """(success, failed checks) of one row under a criterion; success None when a needed score is unavailable
-    (ground truth missing) and nothing else failed."""
-    fails: list[str] = []
-    unknown = False
-    if c.landed and not row["landed"]:
-        fails.append(f"not landed ({row['end']})")
+# the checks a criterion makes: (name, the row's score, the *_present column, the ground-truth class group)
+DIST_CHECKS = (("min_dist_person_m", "dist_person_m", "persons_present", "people"),
+               ("min_dist_vehicle_m", "dist_vehicle_m", "vehicles_present", "vehicles"),
+               ("min_dist_object_m", "dist_object_m", "objects_present", "objects"))  # fmt: skip
+
+
+def check_outcomes(row: dict[str, Any], c: Criterion) -> list[tuple[str, bool | None, str]]:
+    """Every check of the criterion on one row: (check, passed | None when it cannot be judged, why). A check
+    cannot be judged when the score it needs is unavailable: no ground truth of that kind, or the class was not
+    annotated in the footage (then "nobody of that class" is unknown, not true)."""
+    out: list[tuple[str, bool | None, str]] = []
+    if c.landed:
+        out.append(("landed", bool(row["landed"]), "" if row["landed"] else f"not landed ({row['end']})"))
     if c.max_touchdown_speed_m_s is not None:
         v = row["touchdown_speed_m_s"]
-        if v is None or v >= c.max_touchdown_speed_m_s:
-            fails.append(
-                f"touchdown speed {v} >= {c.max_touchdown_speed_m_s:g} m/s"
-                if v is not None
-                else "no touchdown"
-            )
-    for key, lim, present in (("dist_person_m", c.min_dist_person_m, "persons_present"),
-                              ("dist_vehicle_m", c.min_dist_vehicle_m, "vehicles_present"),
-                              ("dist_object_m", c.min_dist_object_m, "objects_present")):  # fmt: skip
+        ok = v is not None and v < c.max_touchdown_speed_m_s
+        why = "" if ok else (f"touchdown speed {v} >= {c.max_touchdown_speed_m_s:g} m/s" if v is not None
+                             else "no touchdown")  # fmt: skip
+        out.append(("touchdown_speed_m_s", ok, why))
+    for (mkey, key, present, group), lim in zip(
+        DIST_CHECKS, (c.min_dist_person_m, c.min_dist_vehicle_m, c.min_dist_object_m), strict=True
+    ):
         if lim is None:
             continue
-        mkey = "min_" + key
         if not row["gt_objects"]:
-            unknown = True
+            out.append((mkey, None, f"{mkey}: the footage has no object tracks"))
+        elif row.get(present) is None:
+            out.append((mkey, None, f"{mkey}: {group} not annotated in this footage"))
         elif row[present] is False:
-            pass  # nobody of that class in the footage: satisfied
+            out.append((mkey, True, ""))  # annotated, and nobody of that class in the footage: satisfied
         elif row[mkey] is not None and row[mkey] < lim:
-            fails.append(f"{mkey} {row[mkey]} < {lim:g}")
+            out.append((mkey, False, f"{mkey} {row[mkey]} < {lim:g}"))
         elif row[key] is not None and row[key] < lim:
-            fails.append(f"{key} {row[key]} < {lim:g}")
+            out.append((mkey, False, f"{key} {row[key]} < {lim:g}"))
+        else:
+            out.append((mkey, True, ""))
     if c.max_risk_level is not None:
+        lv = row["risk_level"]
         if not row["gt_risk"]:
-            unknown = True
-        elif row["risk_level"] is not None and row["risk_level"] > c.max_risk_level:
-            fails.append(f"risk_level {row['risk_level']} > {c.max_risk_level}")
+            out.append(("risk_level", None, "risk_level: the footage has no risk map"))
+        elif lv is not None and lv > c.max_risk_level:
+            out.append(("risk_level", False, f"risk_level {lv} > {c.max_risk_level}"))
+        else:  # (no touchdown: the landed / touchdown speed checks fail instead)
+            out.append(("risk_level", True, ""))
+    return out
+
+
+def judge_checks(row: dict[str, Any], c: Criterion) -> tuple[bool | None, list[str], list[str]]:
+    """(success, failed checks, checks that could not be judged). Success is False when any judged check failed
+    (a failure stands whatever the others say), None ("unscored") when none failed but one could not be judged
+    (a success that rests on an unanswerable check is no success), True only when every check passed."""
+    res = check_outcomes(row, c)
+    fails = [why for _, ok, why in res if ok is False]
+    unknown = [why for _, ok, why in res if ok is None]
     if fails:
-        return False, fails
-    return (None if unknown else True), fails
+        return False, fails, unknown
+    return (None if unknown else True), fails, unknown
+
+
+def judge(row: dict[str, Any], c: Criterion) -> tuple[bool | None, list[str]]:
+    """(success, failed checks) of one row under a criterion (judge_checks without the unjudged list)."""
+    ok, fails, _ = judge_checks(row, c)
+    return ok, fails

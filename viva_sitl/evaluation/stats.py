@@ -12,6 +12,9 @@ from typing import Any
 
 import numpy as np
 
+from viva_sitl.evaluation.scoring import check_outcomes
+from viva_sitl.evaluation.spec import Criterion
+
 BOOTSTRAP_SEED = 20240513
 RESAMPLES = 2000
 SUMMARY_COLUMNS = (
@@ -20,6 +23,7 @@ SUMMARY_COLUMNS = (
     "min_dist_object_m", "risk_level", "time_to_land_s", "path_length_m",
     "energy_wh", "time_outside_footage_s", "flight_time_s",
 )  # fmt: skip
+ORDINAL_COLUMNS = ("risk_level",)  # levels 1..5: counts per level and the median, never a mean
 
 
 def bootstrap_ci(values: np.ndarray, stat: Any = np.mean, level: float = 0.95,
@@ -53,7 +57,11 @@ def _r(x: float, nd: int = 4) -> float | None:
     return None if not math.isfinite(x) else round(x, nd)
 
 
-def aggregate(rows: list[dict[str, Any]], criterion_name: str) -> dict[str, Any]:
+def aggregate(
+    rows: list[dict[str, Any]], criterion_name: str, criterion: Criterion | None = None
+) -> dict[str, Any]:
+    """Success (over the judged trials), per-check rates of `criterion` (each over the trials where it could be
+    judged; `unavailable` counts the others), ends, and a summary of every score (risk level: a distribution)."""
     n = len(rows)
     judged = [r for r in rows if r.get("success") is not None]
     k = sum(1 for r in judged if r["success"])
@@ -65,6 +73,8 @@ def aggregate(rows: list[dict[str, Any]], criterion_name: str) -> dict[str, Any]
         "criterion": criterion_name,
         "success_judged": len(judged),  # trials the criterion could be evaluated on (ground truth available)
         "success": k,
+        "success_unscored": n
+        - len(judged),  # no check failed but one could not be judged (criterion_unavailable)
         "success_rate": _r(k / len(judged)) if judged else None,
         "success_rate_ci95_wilson": [_r(v) for v in wilson_ci(k, len(judged))] if judged else None,
         "success_rate_ci95_bootstrap": (
@@ -72,14 +82,23 @@ def aggregate(rows: list[dict[str, Any]], criterion_name: str) -> dict[str, Any]
             if judged
             else None
         ),
+        "landed": sum(1 for r in rows if r.get("landed")),
         "landed_rate": _r(sum(1 for r in rows if r.get("landed")) / n) if n else None,
         "ends": dict(sorted(ends.items())),
         "scores": {},
     }
+    if criterion is not None:
+        out["checks"] = check_rates(rows, criterion)
     for key in SUMMARY_COLUMNS:
         x = _num(rows, key)
         if x.size == 0:
             out["scores"][key] = {"n": 0}
+            continue
+        if key in ORDINAL_COLUMNS:
+            out["scores"][key] = {
+                "n": int(x.size), "counts": {str(lv): int(np.sum(x == lv)) for lv in range(1, 6)},
+                "median": _r(float(np.median(x))), "min": _r(float(x.min())), "max": _r(float(x.max())),
+            }  # fmt: skip
             continue
         lo, hi = bootstrap_ci(x)
         out["scores"][key] = {
@@ -88,6 +107,29 @@ def aggregate(rows: list[dict[str, Any]], criterion_name: str) -> dict[str, Any]
             "p10": _r(float(np.quantile(x, 0.1))), "p90": _r(float(np.quantile(x, 0.9))),
         }  # fmt: skip
     return out
+
+
+def check_rates(rows: list[dict[str, Any]], criterion: Criterion) -> dict[str, Any]:
+    """Per check of the criterion: passed / judged (Wilson 95 %), and how many trials could not judge it."""
+    acc: dict[str, list[int]] = {}
+    for r in rows:
+        for name, ok, _ in check_outcomes(r, criterion):
+            a = acc.setdefault(name, [0, 0, 0])  # passed, judged, unavailable
+            if ok is None:
+                a[2] += 1
+            else:
+                a[1] += 1
+                a[0] += int(ok)
+    return {
+        name: {
+            "passed": p,
+            "judged": j,
+            "unavailable": u,
+            "rate": _r(p / j) if j else None,
+            "rate_ci95_wilson": [_r(v) for v in wilson_ci(p, j)] if j else None,
+        }  # fmt: skip
+        for name, (p, j, u) in acc.items()
+    }
 
 
 def paired(rows_a: list[dict[str, Any]], rows_b: list[dict[str, Any]]) -> dict[str, Any]:

@@ -192,6 +192,8 @@ def _write_metadata(
     srt = meta.srt or (str(find_srt_sidecar(src) or ""))
     if srt:
         lines.append(f"srt = {_toml_value(srt)}")
+    if meta.annotated is not None:  # what the ground truth looked for travels with it
+        lines.append(f"annotated = {_toml_value(list(meta.annotated))}")
     if meta.annotations_path and meta.annotations_format is not None:
         lines += [
             "",
@@ -234,6 +236,8 @@ def _ground_truth_lines(meta: FootageMetadata) -> list[str]:
             out.append(f"raster = {_toml_value(r.raster)}")
         if r.notes:
             out.append(f"notes = {_toml_value(r.notes)}")
+        if r.accuracy_m is not None:
+            out.append(f"accuracy_m = {_toml_value(r.accuracy_m)}")
         if r.levels:
             out.append("levels = { " + ", ".join(f"{json.dumps(k)} = {v}" for k, v in r.levels) + " }")
         if r.objects:

@@ -20,6 +20,7 @@ A footage file (top-level keys; only `name`, `kind` and, except for synthetic, `
     attribution = "..."
     source_url = "https://..."
     notes = "..."                        # how the numbers were chosen
+    annotated = ["vehicle"]              # which object classes the ground truth looked for (ANNOTATED_GROUPS)
 
     [annotations]
     path = "footage/songdo/00003.txt"    # YOLO .txt (stills), a folder of per-frame YOLO .txt, or a MOT .txt/.csv
@@ -27,6 +28,13 @@ A footage file (top-level keys; only `name`, `kind` and, except for synthetic, `
     class_names = ["vehicle"]
 
     [synthetic]                          # kind = "synthetic" only: SyntheticFieldParams fields
+
+`annotated` says which classes the footage's object ground truth ([annotations], [tracks], the derived
+`<stem>.tracks.csv`) looked for everywhere in the frame, so that "none there" can be told from "not looked for":
+"person" (people on foot and on bikes), "vehicle" (cars, buses, trucks), "moving object" (whatever moved: the
+motion-derived tracks), "all" (every object on the ground, as the synthetic field's actors). A score or a criterion
+about a class that is not listed is unavailable (null), never "nobody there". Missing (older files): nothing is
+declared, so nothing is assumed annotated (the synthetic field, exact by construction, counts as "all").
 
 A catalog file (`[catalog]` table) describes a remote record (Zenodo); its files are listed at `get` time:
 
@@ -55,6 +63,7 @@ VIDEO_EXTENSIONS = frozenset(
     {".mp4", ".mov", ".mkv", ".avi", ".m4v", ".webm", ".ts", ".mts", ".h264", ".hevc", ".y4m"}
 )
 IMAGE_EXTENSIONS = frozenset({".jpg", ".jpeg", ".png", ".tif", ".tiff", ".bmp", ".webp", ".jp2"})
+ANNOTATED_GROUPS = ("person", "vehicle", "moving object", "all")  # values of `annotated`
 
 
 class FootageKind(enum.Enum):
@@ -102,6 +111,9 @@ class FootageMetadata:
     tracks: TracksSpec | None = None  # [tracks]: objects over time (worldmeta.py)
     risk: RiskSpec | None = None  # [risk]: ground risk map (worldmeta.py)
     config_file: str = ""  # where this came from
+    annotated: tuple[str, ...] | None = (
+        None  # classes the object ground truth looked for (None: not declared)
+    )
 
     def __post_init__(self) -> None:
         if not self.name:
@@ -186,6 +198,19 @@ def _resolve(rel: str, base_dirs: tuple[Path, ...]) -> str:
     return str((base_dirs[0] / p).resolve())
 
 
+def _annotated(v: Any, where: str) -> tuple[str, ...]:
+    if not isinstance(v, list) or not all(isinstance(x, str) for x in v):
+        raise FootageError(
+            f"{where}: annotated must be a list of class names ({', '.join(ANNOTATED_GROUPS)})"
+        )
+    bad = [x for x in v if x.strip().lower() not in ANNOTATED_GROUPS]
+    if bad:
+        raise FootageError(
+            f"{where}: annotated: unknown class {bad[0]!r} (one of {', '.join(ANNOTATED_GROUPS)})"
+        )
+    return tuple(sorted({x.strip().lower() for x in v}))
+
+
 def read_toml(path: Path) -> dict[str, Any]:
     try:
         with path.open("rb") as f:
@@ -247,6 +272,8 @@ def metadata_from_table(
     values["ground_alt_amsl_m"] = _num(table, "ground_alt_amsl_m", where) or 0.0
     for key in ("licence", "attribution", "source_url", "notes"):
         values[key] = str(table.get(key, ""))
+    if "annotated" in table:
+        values["annotated"] = _annotated(table["annotated"], where)
     if ann is not None:
         if not isinstance(ann, dict) or "path" not in ann:
             raise FootageError(f"{where}: [annotations] needs a path")

@@ -11,6 +11,8 @@
     polygons = "nexus.risk.json"           # relative to this file: polygons in footage pixels (or NED metres)
     raster = "x.png"                       # ... or a label raster: pixel value = level (0 = default_level)
     default_level = 3                      # ground no polygon covers
+    accuracy_m = 2.0                       # how far a polygon edge may be off on the ground (planners keep this
+                                           # margin; missing: 2 m assumed for a map, 0 for the synthetic field)
     levels = { lawn = 1, road = 4 }        # class -> level overrides of the default table (world/risk.py)
     [risk.objects]                         # moving objects raise the level around them
     person = { level = 5, buffer_m = 5.0 } # within buffer_m (+ half the object's size) of its centre
@@ -41,7 +43,7 @@ def derived_tracks_path(config_file: str | Path) -> Path | None:
 
 OBJECT_CLASS_LABELS = ("person", "bicycle", "car", "bus", "truck", "other", "moving object")
 _TRACK_KEYS = {"path", "format", "fps", "max_gap_frames", "class_map"}
-_RISK_KEYS = {"polygons", "raster", "default_level", "levels", "objects", "notes"}
+_RISK_KEYS = {"polygons", "raster", "default_level", "levels", "objects", "notes", "accuracy_m"}
 
 
 @dataclass(frozen=True)
@@ -61,6 +63,7 @@ class RiskSpec:
     levels: tuple[tuple[str, int], ...] = ()
     objects: tuple[tuple[str, int, float], ...] = ()  # (class, level, buffer_m)
     notes: str = field(default="")
+    accuracy_m: float | None = None  # stated accuracy of the map on the ground (None: not stated)
 
 
 def _level(v: Any, where: str, what: str) -> int:
@@ -133,5 +136,11 @@ def parse_risk(table: Any, where: str, own_dir: Path) -> RiskSpec:
         p = Path(str(v)).expanduser()
         return str(p if p.is_absolute() else (own_dir / p).resolve())
 
+    acc = table.get("accuracy_m")
+    if acc is not None and (
+        isinstance(acc, bool) or not isinstance(acc, int | float) or not 0 <= acc < math.inf
+    ):
+        raise FootageError(f"{where}: [risk] accuracy_m must be a number of metres >= 0, got {acc!r}")
     return RiskSpec(rel("polygons"), rel("raster"), _level(table.get("default_level", 3), where, "[risk] default_level"),
-                    lv, tuple(sorted(ob)), str(table.get("notes", "")))  # fmt: skip
+                    lv, tuple(sorted(ob)), str(table.get("notes", "")),
+                    None if acc is None else float(acc))  # fmt: skip

@@ -4,6 +4,10 @@
     MOG2 background subtractor (primed with the per-pixel median of frames spread over the whole clip, so the first
     frames already have a clean background) -> morphology -> connected components (area limits in m^2) -> a small tracker -> tracks labelled
     derived, class "moving object". Tracks that never travel `min_travel_m` are dropped (flicker, swaying trees).
+    Across the loop seam: the camera plays the clip in a loop, so the derivation does too: it first runs over the
+    clip's last `preroll_frames` frames (their rows discarded, they are derived again in order), so that at frame 0
+    the background model and the tracker are warm and the objects there are counted like anywhere else (without
+    it the count dropped from ~65 to 0-2 objects for the first ~0.5 s at every loop of the interchange clip).
     Tracker: greedy nearest-centroid association with constant-velocity prediction, written here because the
     light PyPI trackers do not fit: norfair pins numpy < 2 (the project runs numpy 2 with opencv 5), `trackers`
     pulls supervision + full opencv-python (clashes with opencv-python-headless), motpy/sort-track are
@@ -46,6 +50,7 @@ class MotionParams:
     max_misses: int = 10  # frames a track may go undetected before it ends
     min_hits: int = 5  # detections a track needs to be kept
     min_travel_m: float = 4.0  # net displacement a track needs to be kept (drops flicker)
+    preroll_frames: int = 50  # the clip's last frames run first (the loop seam), their rows dropped; 0: none
 
 
 @dataclass
@@ -151,16 +156,21 @@ def motion_tracks(src: FootageSource, params: MotionParams | None = None, progre
     # prime: the per-pixel median of frames spread over the clip is the background without the movers
     sample = [work(int(i)) for i in np.linspace(0, n_frames - 1, min(p.prime_frames, n_frames)).astype(int)]
     if p.prime_median:  # the frames teach the per-pixel spread (jitter), their median the clean background
-        sample = sample + [np.median(np.stack(sample), axis=0).astype(np.uint8)] * len(sample)
+        median = np.median(np.stack(sample), axis=0).astype(np.uint8)
+        # the median goes first too: MOG2 takes its first image as the initial background at full weight, and
+        # when that was frame 0 (cars included) the cars of the first frames read as background (0-2 objects
+        # at frame 0 of every loop, ~0.5 s to recover)
+        sample = [median] + sample + [median] * len(sample)
     for img in sample:
         mog.apply(img, learningRate=-1)
     tracker = CentroidTracker(p.gate_m / m_per_px, p.max_misses)
     area = m_per_px * m_per_px
     close_px = max(1, round(p.close_m / m_per_px)) | 1
-    for i in range(n_frames):
-        fg = np.asarray(mog.apply(work(i)) > 127, np.uint8) * np.uint8(255)
+    pre = min(max(0, p.preroll_frames), n_frames - 1)
+    for i in range(-pre, n_frames):  # frame -k is frame n_frames - k played before frame 0 (the loop)
+        fg = np.asarray(mog.apply(work(i % n_frames)) > 127, np.uint8) * np.uint8(255)
         tracker.update(i, motion_boxes(fg, p.min_area_m2 / area, p.max_area_m2 / area, close_px))
-        if progress is not None:
+        if progress is not None and i >= 0:
             progress(1)
     rows: list[BoxRow] = []
     kept = 0
@@ -171,8 +181,12 @@ def motion_tracks(src: FootageSource, params: MotionParams | None = None, progre
         c1 = (t.rows[-1][1][:2] + t.rows[-1][1][2:]) / 2
         if float(np.hypot(*(c1 - c0))) * m_per_px < p.min_travel_m:
             continue
+        if t.rows[-1][0] < 0:
+            continue  # seen in the pre-roll only: those frames come again (and are tracked) at the clip's end
         kept += 1
         for f, b in t.rows:
+            if f < 0:
+                continue
             x0, y0, x1, y1 = (float(v) / s for v in b)
             rows.append(BoxRow(f, kept, MOVING_LABEL, x0, y0, x1, y1, False, False, None, True))
     return rows

@@ -7,6 +7,13 @@
     world.tracks.distances_along(n_arr, e_arr, t_arr, PEOPLE)   # per-sample nearest distance (scores)
     world.risk_at(n, e, t)                              # level 1..5: static map, raised near moving objects
     world.has_objects / world.has_risk_map              # False: scores that need them are "unavailable"
+    world.answers("person")                             # the object ground truth looked for people (see below)
+
+What the object ground truth can answer: the footage metadata's `annotated` list (footage/metadata.py) names the
+classes that were looked for everywhere; "nobody of class X here" is only known for those. answers(group) for the
+score groups "person", "vehicle" and "object" (any object: needs "all", or "person" and "vehicle"). The synthetic
+field is "all" (its actors are exact); a footage that declares nothing answers nothing (conservative: older
+metadata files make person / vehicle / object scores unavailable until they say what was annotated).
 
 Sources of objects, all merged: the synthetic field's actors (exact), `[annotations]` (yolo/mot, via the footage
 source), `[tracks]` (sdd/motchallenge/visdrone/coco/viva), and `<metadata stem>.tracks.csv` beside the metadata
@@ -40,6 +47,8 @@ from viva_sitl.world.risk import (
 )
 from viva_sitl.world.tracks import TrackInfo, TrackSource, TrackTable, analytic_tracks, build_tracks
 
+DEFAULT_RISK_ACCURACY_M = 2.0  # a risk map whose metadata states no accuracy_m
+
 
 @dataclass(frozen=True)
 class ObjectRisk:
@@ -71,6 +80,8 @@ class WorldModel:
         has_objects: bool = True,
         has_risk_map: bool = True,
         class_levels: dict[str, int] | None = None,
+        annotated: frozenset[str] | None = None,
+        risk_accuracy_m: float = 0.0,
     ) -> None:
         self.name = name
         self.geometry = geometry
@@ -81,6 +92,10 @@ class WorldModel:
         self.has_objects = has_objects
         self.has_risk_map = has_risk_map
         self.class_levels = dict(class_levels or DEFAULT_CLASS_LEVELS)
+        # the classes the object ground truth looked for (metadata `annotated`); empty: unknown, answers nothing
+        self.annotated = frozenset(annotated or ()) if has_objects else frozenset()
+        # how far the risk map's edges may be off on the ground (metadata [risk] accuracy_m; planners keep it)
+        self.risk_accuracy_m = float(risk_accuracy_m)
         self._obj_level = np.array([self.object_risk[c].level for c in ObjectClass], np.uint8)
         self._obj_buffer = np.array([self.object_risk[c].buffer_m for c in ObjectClass], np.float64)
         # per presence row: the level it imposes and the squared reach (buffer + half its larger ground size)
@@ -89,6 +104,18 @@ class WorldModel:
         )
         self._row_reach2 = reach * reach
         self._row_level = self._obj_level[tracks.row_class]
+
+    def answers(self, group: str) -> bool:
+        """Whether the object ground truth can answer questions about `group` ("person", "vehicle", "object"):
+        the class was annotated, so no track of it means nobody there (not: nobody looked)."""
+        a = self.annotated
+        if "all" in a:
+            return True
+        if group == "object":
+            return {"person", "vehicle"} <= a
+        if group in ("person", "vehicle"):
+            return group in a
+        raise ValueError(f"unknown object group {group!r} (person, vehicle, object)")
 
     def static_risk_at(self, north_m: float, east_m: float) -> int:
         return self.risk_map.level_at(north_m, east_m)
@@ -136,6 +163,9 @@ class WorldModel:
                 else "none"
             )
             + f", default level {self.risk_map.default_level}",
+            "risk_accuracy_m": f"{self.risk_accuracy_m:g}",
+            "annotated": ", ".join(sorted(self.annotated))
+            or "not declared (person/vehicle/object scores unavailable)",
         }
 
 
@@ -222,8 +252,13 @@ def world_from_source(src: FootageSource, meta: FootageMetadata | None = None) -
     if meta.risk is not None:
         for cls_name, level, buffer_m in meta.risk.objects:
             object_risk[ObjectClass.parse(cls_name)] = ObjectRisk(level, buffer_m)
+    annotated = frozenset({"all"}) if synthetic else frozenset(meta.annotated or ())
+    stated = meta.risk.accuracy_m if meta.risk is not None else None
+    # unstated: the synthetic field's map is exact (drawn from the same polygons); any other map is taken as
+    # good to DEFAULT_RISK_ACCURACY_M (a hand-drawn edge at a few px of GSD)
+    accuracy = stated if stated is not None else (0.0 if synthetic else DEFAULT_RISK_ACCURACY_M)
     return WorldModel(meta.name, src.geometry, tracks, risk, object_risk, synthetic or bool(sources), has_risk,
-                      levels)  # fmt: skip
+                      levels, annotated, accuracy)  # fmt: skip
 
 
 def load_world(
