@@ -113,18 +113,29 @@ def test_one_footage_clock_no_patched_source(tmp_path: Path) -> None:
     assert row["end"] == TrialEnd.LANDED and "frame_index_at" not in vars(src)
 
 
-def test_land_now_is_announced_as_statustext_and_recorded_once(tmp_path: Path) -> None:
-    """The episode tells the vehicle's STATUSTEXT stream about "land now" (and repeats it), while the trial's events
-    hold it once, as the in-process runner always recorded it."""
+def test_land_now_is_repeated_until_the_pilot_acts_and_recorded_once(tmp_path: Path) -> None:
+    """The episode tells the vehicle's STATUSTEXT stream about "land now", repeats it every 0.5 s until the pilot's
+    first flight command (recorded as the "reaction"), while the trial's events hold "land now" once."""
     spec = spec_from_dict(json.loads(json.dumps(SPEC)), "ep")
     sc = draw_scenarios(spec, 1)[0]
     v = Vehicle(scenario_config(SimConfig(), sc), footage=footage_source(sc.footage))
     ep = Episode(v, sc, limits_of(spec), gcs=False)
-    heard: list[str] = []
-    for _ in range(int(6.0 * 250)):  # past the first repeat (5 s after land_at_s)
-        v.step()
-        heard += [e.text for e in v.autopilot.pop_events()]  # what a MAVLink endpoint would send
-        ep.after_step()
-    assert heard.count(LAND_NOW_TEXT) == 2
+    heard: list[float] = []
+
+    def fly(seconds: float) -> None:
+        for _ in range(round(seconds * 250)):
+            v.step()
+            heard.extend(
+                ep.t_s for e in v.autopilot.pop_events() if e.text == LAND_NOW_TEXT
+            )  # a MAVLink endpoint's
+            ep.after_step()
+
+    fly(2.9)  # land_at_s 0.5: said at 0.5, repeated at 1.0, 1.5, 2.0, 2.5
+    assert len(heard) == 5 and heard[-1] - heard[0] == pytest.approx(2.0, abs=0.02), heard
+    assert v.autopilot.land(v.time_s).ok  # the pilot acts
+    fly(2.0)
+    assert len(heard) == 5  # no repeat after the reaction
+    reaction = [e for e in ep.log.events if e["kind"] == "reaction"]
+    assert len(reaction) == 1 and ep.log.reaction_t_s == reaction[0]["t_s"] == pytest.approx(2.9, abs=0.01)
     assert [e["kind"] for e in ep.log.events].count("land_now") == 1
     assert not any(e["text"] == LAND_NOW_TEXT and e["kind"] == "autopilot" for e in ep.log.events)
