@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import math
 import struct
-from collections.abc import Iterator
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
@@ -15,7 +15,6 @@ from pymavlink.dialects.v20 import common as M
 from test_mavlink_fence import MISSION, _fly_to, _ll, _upload
 
 from viva_sitl.autopilot import FlightMode
-from viva_sitl.mavlink import MavlinkConfig
 
 EDGE_N_M = 102.4  # the finite synthetic field's half size
 BEYOND_N_M = 125.0
@@ -25,20 +24,10 @@ HOLD, RTL, LAND = (FlightMode.AUTO_LOITER.custom_mode, FlightMode.AUTO_RTL.custo
 
 
 @pytest.fixture
-def client() -> Iterator[MavClient]:
-    c = MavClient()
-    yield c
-    c.close()
-
-
-@pytest.fixture
-def vehicle(client: MavClient, tmp_path: Path) -> Iterator[VehicleThread]:
+def vehicle(vehicle_factory: Callable[..., VehicleThread], tmp_path: Path) -> VehicleThread:
     finite = tmp_path / "finite-synthetic.toml"
     finite.write_text('name = "finite"\nkind = "synthetic"\n[synthetic]\nunbounded = false\n')
-    cfg = MavlinkConfig(api_remote_port=client.port, gcs_remote_port=0, api_local_port=0, gcs_local_port=0)
-    with VehicleThread(cfg, speed=4.0, footage=finite) as vt:
-        client.target = vt.api
-        yield vt
+    return vehicle_factory(speed=4.0, footage=finite)
 
 
 def _set_int(client: MavClient, name: str, value: int) -> None:
