@@ -28,7 +28,8 @@ pytestmark = pytest.mark.e2e
 @pytest.fixture(scope="module")
 def token_segmenter(tmp_path_factory: pytest.TempPathFactory) -> Path:
     pytest.importorskip(
-        "torch", reason="the segmenter needs the perception extra: pip install 'viva-sitl[perception]'"
+        "torch",
+        reason="the segmenter needs the perception extra: pip install torch==2.13.0 && pip install 'viva-sitl[perception]'",
     )
     d = tmp_path_factory.mktemp("seg")
     env_cmd = [sys.executable, "-m", "viva_sitl"]
