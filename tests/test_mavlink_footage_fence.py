@@ -55,6 +55,7 @@ def _beyond_mission() -> list[tuple[int, int, float, float, float, float, int, i
     return [(rel, M.MAV_CMD_NAV_WAYPOINT, 0, 0, 0, NAN, *_ll(BEYOND_N_M, 0.0), 6.0)]
 
 
+@pytest.mark.slow  # ~11 s each; the strict-edge Hold case below keeps the footage fence in the fast tier
 @pytest.mark.parametrize("action", [0, 1])
 def test_off_and_warning_fly_beyond_the_footage_land_and_rearm_there(
     client: MavClient, vehicle: VehicleThread, action: int
@@ -83,7 +84,10 @@ def test_off_and_warning_fly_beyond_the_footage_land_and_rearm_there(
     assert ack is not None and ack.result == M.MAV_RESULT_DENIED
 
 
-@pytest.mark.parametrize(("action", "mode"), [(2, HOLD), (3, RTL), (5, LAND)])
+@pytest.mark.parametrize(
+    ("action", "mode"),
+    [(2, HOLD), pytest.param(3, RTL, marks=pytest.mark.slow), pytest.param(5, LAND, marks=pytest.mark.slow)],
+)
 def test_strict_edge_refuses_targets_beyond_and_reacts_to_crossing(
     client: MavClient, vehicle: VehicleThread, action: int, mode: int
 ) -> None:

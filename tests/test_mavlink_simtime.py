@@ -29,7 +29,10 @@ from viva_sitl.autopilot import FlightMode
 from viva_sitl.mavlink import MavlinkConfig
 from viva_sitl.mavlink.selftest import SnapshotCamera
 
-SPEEDS = [1.0, 4.0]
+SPEEDS = [
+    pytest.param(1.0, marks=pytest.mark.slow),
+    4.0,
+]  # the 4x variant checks the same in a quarter of the time
 
 
 def _config(client: MavClient) -> MavlinkConfig:

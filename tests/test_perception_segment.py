@@ -215,6 +215,7 @@ def test_on_ground_follows_the_pose() -> None:
     )
 
 
+@pytest.mark.slow  # trains a U-Net from the CLI
 @pytest.mark.e2e
 def test_export_then_token_training_from_the_cli(tmp_path: Path) -> None:
     def run(*args: str) -> subprocess.CompletedProcess[str]:
