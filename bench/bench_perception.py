@@ -108,7 +108,9 @@ def bench_sr(args: argparse.Namespace) -> str:
         "ESPCN_x4",
     ):
         methods[name] = OpenCVSR(SR_DIR / f"{name}.pb")
-    edsr_note = "EDSR: not measured (torch absent: pip install 'viva-sitl[perception]')"
+    edsr_note = (
+        "EDSR: not measured (torch absent: pip install torch==2.13.0 && pip install 'viva-sitl[perception]')"
+    )
     try:
         import torch
 

@@ -1,4 +1,5 @@
-"""Shared fixtures: the ../shared footage (skip when absent), free UDP ports, viva-sitl subprocesses, MAVLink peers."""
+"""Shared fixtures: the ../shared footage (skip when absent), free UDP ports, viva-sitl subprocesses, MAVLink peers,
+and the MAVLink protocol tests' client + selftest vehicle on a thread (`client`, `vehicle_factory`)."""
 
 from __future__ import annotations
 
@@ -8,7 +9,11 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from mav_client import MavClient, VehicleThread
 from sitl_process import MavlinkPeer, SitlProcess, e2e_speed, free_udp_ports
+
+from viva_sitl.mavlink import MavlinkConfig
+from viva_sitl.mavlink.camera_link import CameraLink
 
 # The Ctrl-C tests send SIGINT to the processes they start. A shell that starts a job in the background without job
 # control (`cmd &` in a script, as a CI harness may) starts it with SIGINT ignored, and exec keeps an ignored signal
@@ -89,3 +94,36 @@ def peer_factory() -> Iterator[Callable[[int], MavlinkPeer]]:
     yield make
     for peer in peers:
         peer.close()
+
+
+@pytest.fixture
+def client() -> Iterator[MavClient]:
+    """A pymavlink-codec client on a free UDP port of 127.0.0.1 (plays MAVSDK's API peer); closed at teardown."""
+    c = MavClient()
+    yield c
+    c.close()
+
+
+@pytest.fixture
+def vehicle_factory(client: MavClient) -> Iterator[Callable[..., VehicleThread]]:
+    """start(speed=1.0, camera=None, footage=None, **MavlinkConfig fields) -> a started VehicleThread whose API link
+    talks to `client` (client.target set to it); no GCS remote, local ports free. Every one is stopped at teardown.
+
+    A test module's `vehicle` fixture is one call: `return vehicle_factory(speed=4.0)`."""
+    started: list[VehicleThread] = []
+
+    def start(
+        speed: float = 1.0, camera: CameraLink | None = None, footage: str | Path | None = None, **config: Any
+    ) -> VehicleThread:
+        fields: dict[str, Any] = {"api_remote_port": client.port, "gcs_remote_port": 0, "api_local_port": 0,
+                                  "gcs_local_port": 0}  # fmt: skip
+        fields.update(config)
+        vt = VehicleThread(MavlinkConfig(**fields), speed=speed, camera=camera, footage=footage)
+        started.append(vt)
+        vt.start()
+        client.target = vt.api
+        return vt
+
+    yield start
+    for vt in started:
+        vt.stop()

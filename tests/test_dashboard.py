@@ -18,7 +18,7 @@ from sitl_process import MavlinkPeer, SitlProcess, free_tcp_port
 
 aiohttp = pytest.importorskip("aiohttp", reason="aiohttp is in the dashboard/test extras")
 
-pytestmark = pytest.mark.e2e
+pytestmark = [pytest.mark.e2e, pytest.mark.slow]  # slow: each test flies a viva-sitl + its dashboard
 ARMED_FLAG = 128
 
 

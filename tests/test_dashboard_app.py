@@ -35,6 +35,7 @@ def test_a_controller_steers_the_autopilot_of_now_after_a_reset(tmp_path: Path) 
         app.sim.close()
 
 
+@pytest.mark.slow  # a viva-sitl process
 @pytest.mark.e2e
 def test_hud_links_are_the_peers_the_endpoint_heard(sitl_factory: Callable[..., SitlProcess]) -> None:
     sitl = sitl_factory(extra_args=["--dashboard-port", str(free_tcp_port())])

@@ -16,6 +16,7 @@ from sitl_process import MavlinkPeer, SitlProcess, free_tcp_port, free_udp_ports
 
 pytestmark = [
     pytest.mark.e2e,
+    pytest.mark.slow,  # a viva-sitl process and a headless Chromium per test
     pytest.mark.skipif(
         chromium_paths() is None,
         reason="Chromium absent: apt-get install chromium chromium-driver (Debian) to run the browser tests",

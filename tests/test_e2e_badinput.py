@@ -12,7 +12,7 @@ import pytest
 from pymavlink.dialects.v20 import common as mavlink2
 from sitl_process import MODE_OFFBOARD, MavlinkPeer, SetpointStreamer, SitlProcess, finite, is_armed
 
-pytestmark = pytest.mark.e2e
+pytestmark = [pytest.mark.e2e, pytest.mark.slow]  # slow: flights of a viva-sitl process
 
 POSITION_ONLY_MASK = 2552  # MAVSDK's set_position_ned: position + yaw
 ATTITUDE_MASK = 7  # ignore body rates: quaternion + thrust

@@ -25,7 +25,7 @@ from sitl_process import (
     takeoff,
 )
 
-pytestmark = pytest.mark.e2e
+pytestmark = [pytest.mark.e2e, pytest.mark.slow]  # slow: flights of a viva-sitl process
 
 POSITION_MASK = 2552  # position + yaw (MAVSDK set_position_ned)
 VELOCITY_MASK = 2503  # velocity + yaw (MAVSDK set_velocity_ned)

@@ -61,7 +61,7 @@ def _mode(peer: MavlinkPeer, mode: int, timeout_s: float, what: str) -> Any:
                      what=what)  # fmt: skip
 
 
-@pytest.mark.parametrize("speed", [1.0, 4.0])
+@pytest.mark.parametrize("speed", [pytest.param(1.0, marks=pytest.mark.slow), 4.0])  # 1x: ~49 s, 4x: ~13 s
 def test_fence_rally_do_jump_and_orbit_flown_at_speed(
     sitl_factory: Callable[..., SitlProcess], peer_factory: Callable[[int], MavlinkPeer], speed: float
 ) -> None:

@@ -13,7 +13,7 @@ import pytest
 from pymavlink.dialects.v20 import common as mavlink2
 from sitl_process import MavlinkPeer, SitlProcess, free_udp_ports, run_script
 
-pytestmark = [pytest.mark.e2e, pytest.mark.footage]
+pytestmark = [pytest.mark.e2e, pytest.mark.footage, pytest.mark.slow]  # slow: flights over 1080p footage
 
 # Interchange footprint corners (lon, lat) from ../shared/footage/README.md
 CORNERS_LON_LAT = [

@@ -17,7 +17,7 @@ from sitl_process import (
     run_script,
 )
 
-pytestmark = pytest.mark.e2e
+pytestmark = [pytest.mark.e2e, pytest.mark.slow]  # slow: a flight through mavsdk_server
 
 
 def test_grpc_takeoff_land_script(sitl: SitlProcess, peer_factory: Callable[[int], MavlinkPeer]) -> None:

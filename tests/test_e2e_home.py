@@ -28,6 +28,7 @@ def home_position(peer: MavlinkPeer) -> tuple[float, float, float]:
     return home.latitude / 1e7, home.longitude / 1e7, home.altitude / 1e3
 
 
+@pytest.mark.slow  # a viva-sitl process over real footage
 @pytest.mark.footage
 def test_home_places_real_footage_at_px4_default_home(
     interchange_video: Path,
@@ -67,6 +68,7 @@ def test_home_places_real_footage_at_px4_default_home(
     )
 
 
+@pytest.mark.slow  # a viva-sitl process over real footage
 @pytest.mark.footage
 def test_px4_home_env_places_footage(
     interchange_video: Path,

@@ -21,6 +21,7 @@ def _env() -> dict[str, str]:
     return env
 
 
+@pytest.mark.slow  # two viva-sitl processes
 def test_tlog_by_default_and_port_in_use_is_one_line(tmp_path: Path) -> None:
     sitl = SitlProcess(tmp_path, name="first")
     with sitl, MavlinkPeer(sitl.ports.gcs) as peer:
@@ -50,6 +51,7 @@ def test_tlog_by_default_and_port_in_use_is_one_line(tmp_path: Path) -> None:
     assert kinds.get((255, "HEARTBEAT"), 0) >= 1  # the ground station's side is in the log too
 
 
+@pytest.mark.slow  # a viva-sitl run
 def test_no_tlog_writes_none(tmp_path: Path) -> None:
     sitl = SitlProcess(tmp_path, name="quiet", extra_args=["--no-tlog"])
     with sitl:

@@ -27,7 +27,7 @@ from sitl_process import (
     run_script,
 )
 
-pytestmark = pytest.mark.e2e
+pytestmark = [pytest.mark.e2e, pytest.mark.slow]  # slow: flights of a viva-sitl process
 
 
 def test_takeoff_land_script(sitl: SitlProcess, peer_factory: Callable[[int], MavlinkPeer]) -> None:

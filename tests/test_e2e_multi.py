@@ -24,7 +24,7 @@ from sitl_process import (
     run_script,
 )
 
-pytestmark = pytest.mark.e2e
+pytestmark = [pytest.mark.e2e, pytest.mark.slow]  # slow: two viva-sitl processes
 
 
 def autopilot_heartbeat(

@@ -20,7 +20,7 @@ from sitl_process import (
     run_script,
 )
 
-pytestmark = pytest.mark.e2e
+pytestmark = [pytest.mark.e2e, pytest.mark.slow]  # slow: offboard flights, ~20 s each
 
 
 @pytest.fixture

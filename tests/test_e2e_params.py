@@ -67,6 +67,7 @@ def _read_int(peer: MavlinkPeer, name: str) -> int:
     return int(struct.unpack("<i", struct.pack("<f", raw))[0])
 
 
+@pytest.mark.slow  # a viva-sitl process
 def test_qgc_params_file_loads_and_reads_back(
     sitl: SitlProcess, peer_factory: Callable[[int], MavlinkPeer], tmp_path: Path
 ) -> None:
@@ -93,6 +94,7 @@ def test_qgc_params_file_loads_and_reads_back(
     assert sitl.alive
 
 
+@pytest.mark.slow  # a viva-sitl process
 def test_qgc_params_file_with_unknown_names_is_reported(sitl: SitlProcess, tmp_path: Path) -> None:
     params_file = tmp_path / "other_firmware.params"
     _write_qgc_params(params_file, [("MPC_XY_CRUISE", 6.0, 9), ("ARSPD_FBW_MIN", 9.0, 9), ("Q_ENABLE", 1, 6)])
@@ -107,6 +109,7 @@ def test_qgc_params_file_with_unknown_names_is_reported(sitl: SitlProcess, tmp_p
     assert run.result["unknown"] == "2" and run.result["verified"] == "1"
 
 
+@pytest.mark.slow  # a viva-sitl process + MAVSDK
 def test_mavsdk_param_plugin_arbitrary_px4_params(sitl: SitlProcess) -> None:
     mavsdk = pytest.importorskip("mavsdk.asyncio", reason="MAVSDK 4.x (pip install mavsdk>=4) not installed")
     from mavsdk.asyncio.plugins.param.param import ParamAsync
@@ -173,6 +176,7 @@ def test_config_params_are_checked_at_load(tmp_path: Path, table: str, needle: s
     assert lines[0].startswith("viva-sitl: ") and needle in lines[0] and str(cfg) in lines[0]
 
 
+@pytest.mark.slow  # viva-sitl processes
 def test_config_params_apply_at_start_and_mav_sys_id_follows_the_instance(
     sitl_factory: Callable[..., SitlProcess], peer_factory: Callable[[int], MavlinkPeer], tmp_path: Path
 ) -> None:

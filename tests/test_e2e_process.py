@@ -13,6 +13,7 @@ from sitl_process import READY_PREFIX, MavlinkPeer, SitlError, SitlProcess
 pytestmark = pytest.mark.e2e
 
 
+@pytest.mark.slow  # a viva-sitl process run to its end
 def test_ready_line_then_clean_sigint_exit(
     sitl: SitlProcess, peer_factory: Callable[[int], MavlinkPeer]
 ) -> None:
@@ -28,6 +29,7 @@ def test_ready_line_then_clean_sigint_exit(
     assert stats.get("sim_time_s", 0) >= 0.5, f"no stats line on a clean exit\n{sitl.logs()}"
 
 
+@pytest.mark.slow  # a viva-sitl process run to its end
 def test_duration_ends_the_run(tmp_path: Path) -> None:
     proc = SitlProcess(workdir=tmp_path, speed=1.0, extra_args=["--duration", "2"])
     with proc:

@@ -22,7 +22,7 @@ from sitl_process import (
     run_script,
 )
 
-pytestmark = pytest.mark.e2e
+pytestmark = [pytest.mark.e2e, pytest.mark.slow]  # slow: flights of a viva-sitl process
 
 ON_GROUND, IN_AIR, LANDING = 1, 2, 4
 ACCEPTED, TEMPORARILY_REJECTED, DENIED, UNSUPPORTED = 0, 1, 2, 3

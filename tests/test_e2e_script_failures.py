@@ -6,7 +6,7 @@ from __future__ import annotations
 import pytest
 from sitl_process import free_tcp_port, free_udp_ports, mavsdk_servers_on, run_script
 
-pytestmark = pytest.mark.e2e
+pytestmark = [pytest.mark.e2e, pytest.mark.slow]  # slow: each script waits out its own timeouts
 
 SCRIPTS = [
     ("mavsdk_takeoff_land.py", "udpin://127.0.0.1:{port}", "no autopilot heartbeat"),

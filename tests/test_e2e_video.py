@@ -57,7 +57,7 @@ from viva_sitl.sim import Simulator
 from viva_sitl.video import FrameClient, RtpReceiver, read_counter
 from viva_sitl.video.stamp import strip_size_px
 
-pytestmark = pytest.mark.e2e
+pytestmark = [pytest.mark.e2e, pytest.mark.slow]  # slow: a viva-sitl process streaming video
 
 KEEP_EVERY = 5  # keep full images of every 5th frame counter (memory: 0.9 MB per 640x480 frame)
 CAMERA_COMPID = 100

@@ -4,7 +4,7 @@ CAMERA_INFORMATION / VIDEO_STREAM_INFORMATION discovery, settings/status/storage
 from __future__ import annotations
 
 import math
-from collections.abc import Iterator
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
@@ -18,13 +18,6 @@ from viva_sitl.selftest import SnapshotCamera
 CAM = 100
 
 
-@pytest.fixture
-def client() -> Iterator[MavClient]:
-    c = MavClient()
-    yield c
-    c.close()
-
-
 def _cfg(client: MavClient) -> MavlinkConfig:
     return MavlinkConfig(api_remote_port=client.port, gcs_remote_port=0, api_local_port=0, gcs_local_port=0)
 
@@ -35,10 +28,8 @@ def camera(tmp_path: Path) -> SnapshotCamera:
 
 
 @pytest.fixture
-def vehicle(client: MavClient, camera: SnapshotCamera) -> Iterator[VehicleThread]:
-    with VehicleThread(_cfg(client), camera=camera) as vt:
-        client.target = vt.api
-        yield vt
+def vehicle(vehicle_factory: Callable[..., VehicleThread], camera: SnapshotCamera) -> VehicleThread:
+    return vehicle_factory(camera=camera)
 
 
 def _request(

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import math
 import struct
-from collections.abc import Iterator
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
@@ -25,19 +25,8 @@ Item = tuple[int, int, float, float, float, float, int, int, float]  # frame, co
 
 
 @pytest.fixture
-def client() -> Iterator[MavClient]:
-    c = MavClient()
-    yield c
-    c.close()
-
-
-@pytest.fixture
-def vehicle(client: MavClient) -> Iterator[VehicleThread]:
-    cfg = MavlinkConfig(api_remote_port=client.port, gcs_remote_port=0, api_local_port=0, gcs_local_port=0)
-    vt = VehicleThread(cfg, speed=4.0).start()
-    client.target = vt.api
-    yield vt
-    vt.stop()
+def vehicle(vehicle_factory: Callable[..., VehicleThread]) -> VehicleThread:
+    return vehicle_factory(speed=4.0)
 
 
 def _ll(north: float, east: float) -> tuple[int, int]:

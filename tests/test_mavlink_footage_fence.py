@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import math
 import struct
-from collections.abc import Iterator
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
@@ -15,7 +15,6 @@ from pymavlink.dialects.v20 import common as M
 from test_mavlink_fence import MISSION, _fly_to, _ll, _upload
 
 from viva_sitl.autopilot import FlightMode
-from viva_sitl.mavlink import MavlinkConfig
 
 EDGE_N_M = 102.4  # the finite synthetic field's half size
 BEYOND_N_M = 125.0
@@ -25,20 +24,10 @@ HOLD, RTL, LAND = (FlightMode.AUTO_LOITER.custom_mode, FlightMode.AUTO_RTL.custo
 
 
 @pytest.fixture
-def client() -> Iterator[MavClient]:
-    c = MavClient()
-    yield c
-    c.close()
-
-
-@pytest.fixture
-def vehicle(client: MavClient, tmp_path: Path) -> Iterator[VehicleThread]:
+def vehicle(vehicle_factory: Callable[..., VehicleThread], tmp_path: Path) -> VehicleThread:
     finite = tmp_path / "finite-synthetic.toml"
     finite.write_text('name = "finite"\nkind = "synthetic"\n[synthetic]\nunbounded = false\n')
-    cfg = MavlinkConfig(api_remote_port=client.port, gcs_remote_port=0, api_local_port=0, gcs_local_port=0)
-    with VehicleThread(cfg, speed=4.0, footage=finite) as vt:
-        client.target = vt.api
-        yield vt
+    return vehicle_factory(speed=4.0, footage=finite)
 
 
 def _set_int(client: MavClient, name: str, value: int) -> None:
@@ -66,6 +55,7 @@ def _beyond_mission() -> list[tuple[int, int, float, float, float, float, int, i
     return [(rel, M.MAV_CMD_NAV_WAYPOINT, 0, 0, 0, NAN, *_ll(BEYOND_N_M, 0.0), 6.0)]
 
 
+@pytest.mark.slow  # ~11 s each; the strict-edge Hold case below keeps the footage fence in the fast tier
 @pytest.mark.parametrize("action", [0, 1])
 def test_off_and_warning_fly_beyond_the_footage_land_and_rearm_there(
     client: MavClient, vehicle: VehicleThread, action: int
@@ -94,7 +84,10 @@ def test_off_and_warning_fly_beyond_the_footage_land_and_rearm_there(
     assert ack is not None and ack.result == M.MAV_RESULT_DENIED
 
 
-@pytest.mark.parametrize(("action", "mode"), [(2, HOLD), (3, RTL), (5, LAND)])
+@pytest.mark.parametrize(
+    ("action", "mode"),
+    [(2, HOLD), pytest.param(3, RTL, marks=pytest.mark.slow), pytest.param(5, LAND, marks=pytest.mark.slow)],
+)
 def test_strict_edge_refuses_targets_beyond_and_reacts_to_crossing(
     client: MavClient, vehicle: VehicleThread, action: int, mode: int
 ) -> None:

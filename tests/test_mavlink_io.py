@@ -6,7 +6,6 @@ from __future__ import annotations
 import hashlib
 import struct
 import time
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -19,13 +18,6 @@ from viva_sitl.mavlink import MavlinkConfig
 from viva_sitl.selftest import SnapshotCamera
 
 KEY_HEX = "00112233445566778899aabbccddeeff00112233445566778899aabbccddeeff"
-
-
-@pytest.fixture
-def client() -> Iterator[MavClient]:
-    c = MavClient()
-    yield c
-    c.close()
 
 
 def _config(client: MavClient, **kw: Any) -> MavlinkConfig:

@@ -38,6 +38,7 @@ async def _first(gen, pred, timeout_s: float):  # type: ignore[no-untyped-def]
     return await asyncio.wait_for(run(), timeout_s)
 
 
+@pytest.mark.slow  # a MAVSDK flight (the camera tests keep MAVSDK in the fast tier)
 def test_mavsdk_native_api_flies_the_endpoint(tmp_path: Path) -> None:
     from mavsdk.asyncio import ComponentType, Configuration, Mavsdk
     from mavsdk.asyncio.plugins.action.action import ActionAsync

@@ -70,6 +70,7 @@ def _plan() -> str:
     return json.dumps(plan)
 
 
+@pytest.mark.slow  # a MAVSDK flight
 def test_mavsdk_geofence_plan_import_and_do_orbit() -> None:
     from mavsdk.asyncio import ComponentType, Configuration, Mavsdk
     from mavsdk.asyncio.plugins.action.action import ActionAsync
@@ -145,6 +146,7 @@ def test_mavsdk_geofence_plan_import_and_do_orbit() -> None:
         asyncio.run(asyncio.wait_for(scenario(vt), 150.0))
 
 
+@pytest.mark.slow  # a MAVSDK flight
 def test_mavsdk_goto_beyond_the_footage_with_the_default_footage_fence(tmp_path: Path) -> None:
     """MAVSDK's goto example, unchanged, on a finite field: the default SIM_FTG_FENCE (1, warning) lets it fly past
     the footage edge and land there."""

@@ -4,40 +4,21 @@ mission with MISSION_ITEM_REACHED, and the state machine's answers to absurd cou
 from __future__ import annotations
 
 import math
-from collections.abc import Iterator
+from collections.abc import Callable
 
 import pytest
 from mav_client import MavClient, VehicleThread
 from pymavlink.dialects.v20 import common as M
 
 from viva_sitl.geo import GeoOrigin
-from viva_sitl.mavlink import MavlinkConfig
 
 NAN = math.nan
 GEO = GeoOrigin()
 
 
 @pytest.fixture
-def client() -> Iterator[MavClient]:
-    c = MavClient()
-    yield c
-    c.close()
-
-
-def _start(client: MavClient, speed: float = 1.0, **kw: object) -> VehicleThread:
-    cfg = MavlinkConfig(
-        api_remote_port=client.port, gcs_remote_port=0, api_local_port=0, gcs_local_port=0, **kw
-    )  # type: ignore[arg-type]
-    vt = VehicleThread(cfg, speed=speed).start()
-    client.target = vt.api
-    return vt
-
-
-@pytest.fixture
-def vehicle(client: MavClient) -> Iterator[VehicleThread]:
-    vt = _start(client)
-    yield vt
-    vt.stop()
+def vehicle(vehicle_factory: Callable[..., VehicleThread]) -> VehicleThread:
+    return vehicle_factory()
 
 
 def _latlon_e7(north: float, east: float) -> tuple[int, int]:
@@ -182,8 +163,10 @@ def test_out_of_order_and_duplicate_items(client: MavClient, vehicle: VehicleThr
     assert ack is not None and ack.type == M.MAV_MISSION_ACCEPTED
 
 
-def test_upload_timeout_retries_then_cancels(client: MavClient) -> None:
-    vt = _start(client, mission_retry_s=0.15, mission_max_retries=2)
+def test_upload_timeout_retries_then_cancels(
+    client: MavClient, vehicle_factory: Callable[..., VehicleThread]
+) -> None:
+    vt = vehicle_factory(mission_retry_s=0.15, mission_max_retries=2)
     try:
         client.send(client.mav.mission_count_encode(1, 1, 4, 0))
         client.poll(1.2)
@@ -212,8 +195,10 @@ def test_float_mission_items_accepted(client: MavClient, vehicle: VehicleThread)
     assert it.down_m == pytest.approx(-7.0, abs=0.05)
 
 
-def test_mission_flown_reports_items_reached(client: MavClient) -> None:
-    vt = _start(client, speed=4.0)
+def test_mission_flown_reports_items_reached(
+    client: MavClient, vehicle_factory: Callable[..., VehicleThread]
+) -> None:
+    vt = vehicle_factory(speed=4.0)
     try:
         items = _items()
         assert _upload(client, items) == M.MAV_MISSION_ACCEPTED

@@ -4,7 +4,7 @@
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 
 import pytest
 from mav_client import MavClient, VehicleThread
@@ -13,7 +13,6 @@ from pymavlink.dialects.v20 import common as M
 from viva_sitl.autopilot import FlightMode, OffboardFrame
 from viva_sitl.dynamics import EavState, quat_from_euler
 from viva_sitl.geo import GeoOrigin
-from viva_sitl.mavlink import MavlinkConfig
 from viva_sitl.mavlink.offboard import (
     Rejected,
     decode_attitude_target,
@@ -135,14 +134,7 @@ def test_manual_control_normalised() -> None:
 
 
 @pytest.fixture
-def client() -> Iterator[MavClient]:
-    c = MavClient()
-    yield c
-    c.close()
-
-
-@pytest.fixture
-def vehicle(client: MavClient) -> Iterator[VehicleThread]:
+def vehicle(vehicle_factory: Callable[..., VehicleThread]) -> VehicleThread:
     # Telemetry runs per sim second (3x the wall rate here) and this client shares the process (GIL) with the
     # vehicle: only the streams these tests read, so the client keeps up and its setpoint stream stays regular.
     rates = (
@@ -151,16 +143,7 @@ def vehicle(client: MavClient) -> Iterator[VehicleThread]:
         ("GLOBAL_POSITION_INT", 5.0),
         ("ALTITUDE", 0.0),
     )
-    cfg = MavlinkConfig(
-        api_remote_port=client.port,
-        gcs_remote_port=0,
-        api_local_port=0,
-        gcs_local_port=0,
-        rate_overrides=rates,
-    )
-    with VehicleThread(cfg, speed=3.0) as vt:
-        client.target = vt.api
-        yield vt
+    return vehicle_factory(speed=3.0, rate_overrides=rates)
 
 
 def _stream(client: MavClient, msg: M.MAVLink_message, seconds: float, hz: float = 20.0) -> None:

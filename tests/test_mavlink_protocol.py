@@ -8,7 +8,7 @@ import math
 import struct
 import subprocess
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
@@ -23,13 +23,6 @@ from viva_sitl.selftest import SnapshotCamera
 NAN = math.nan
 
 
-@pytest.fixture
-def client() -> Iterator[MavClient]:
-    c = MavClient()
-    yield c
-    c.close()
-
-
 def _config(client: MavClient, **kw: object) -> MavlinkConfig:
     # the client plays MAVSDK's udpin://:14540 (the API link's remote), on a free port; no GCS remote
     base = {"api_remote_port": client.port, "gcs_remote_port": 0, "api_local_port": 0, "gcs_local_port": 0}
@@ -38,18 +31,14 @@ def _config(client: MavClient, **kw: object) -> MavlinkConfig:
 
 
 @pytest.fixture
-def vehicle(client: MavClient, tmp_path: Path) -> Iterator[VehicleThread]:
-    with VehicleThread(_config(client), camera=SnapshotCamera(tmp_path / "captures")) as vt:
-        client.target = vt.api
-        yield vt
+def vehicle(vehicle_factory: Callable[..., VehicleThread], tmp_path: Path) -> VehicleThread:
+    return vehicle_factory(camera=SnapshotCamera(tmp_path / "captures"))
 
 
 @pytest.fixture
-def fast_vehicle(client: MavClient) -> Iterator[VehicleThread]:
+def fast_vehicle(vehicle_factory: Callable[..., VehicleThread]) -> VehicleThread:
     """Sim time 4x wall time: flights take seconds."""
-    with VehicleThread(_config(client), speed=4.0) as vt:
-        client.target = vt.api
-        yield vt
+    return vehicle_factory(speed=4.0)
 
 
 def _autopilot_hb(m: M.MAVLink_message) -> bool:

@@ -5,31 +5,19 @@ from __future__ import annotations
 
 import math
 import struct
-from collections.abc import Iterator
+from collections.abc import Callable
 
 import numpy as np
 import pytest
 from mav_client import MavClient, VehicleThread
 from pymavlink.dialects.v20 import common as M
 
-from viva_sitl.mavlink import MavlinkConfig
-
 NAN, INF = math.nan, math.inf
 
 
 @pytest.fixture
-def client() -> Iterator[MavClient]:
-    c = MavClient()
-    yield c
-    c.close()
-
-
-@pytest.fixture
-def vehicle(client: MavClient) -> Iterator[VehicleThread]:
-    cfg = MavlinkConfig(api_remote_port=client.port, gcs_remote_port=0, api_local_port=0, gcs_local_port=0)
-    with VehicleThread(cfg, speed=2.0) as vt:
-        client.target = vt.api
-        yield vt
+def vehicle(vehicle_factory: Callable[..., VehicleThread]) -> VehicleThread:
+    return vehicle_factory(speed=2.0)
 
 
 def _pack(client: MavClient, msg: M.MAVLink_message) -> bytes:

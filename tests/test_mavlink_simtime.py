@@ -29,18 +29,14 @@ from viva_sitl.autopilot import FlightMode
 from viva_sitl.mavlink import MavlinkConfig
 from viva_sitl.selftest import SnapshotCamera
 
-SPEEDS = [1.0, 4.0]
+SPEEDS = [
+    pytest.param(1.0, marks=pytest.mark.slow),
+    4.0,
+]  # the 4x variant checks the same in a quarter of the time
 
 
 def _config(client: MavClient) -> MavlinkConfig:
     return MavlinkConfig(api_remote_port=client.port, gcs_remote_port=0, api_local_port=0, gcs_local_port=0)
-
-
-@pytest.fixture
-def client() -> Iterator[MavClient]:
-    c = MavClient()
-    yield c
-    c.close()
 
 
 @contextlib.contextmanager
@@ -62,12 +58,6 @@ def _vehicle_process(client: MavClient, speed: float) -> Iterator[subprocess.Pop
         except subprocess.TimeoutExpired:
             proc.kill()
             proc.wait(5.0)
-
-
-def _run(client: MavClient, speed: float) -> VehicleThread:
-    vt = VehicleThread(_config(client), speed=speed).start()
-    client.target = vt.api
-    return vt
 
 
 def _collect_sim_span(client: MavClient, span_ms: int, wall_timeout_s: float) -> list[tuple[float, Any]]:
@@ -267,8 +257,10 @@ class Watch:
 
 
 @pytest.mark.parametrize("speed", SPEEDS)
-def test_gcs_link_loss_failsafe_after_com_dl_loss_t_sim_seconds(client: MavClient, speed: float) -> None:
-    vt = _run(client, speed)
+def test_gcs_link_loss_failsafe_after_com_dl_loss_t_sim_seconds(
+    client: MavClient, vehicle_factory: Callable[..., VehicleThread], speed: float
+) -> None:
+    vt = vehicle_factory(speed=speed)
     watch = Watch(client)
     gcs_hb = client.mav.heartbeat_encode(M.MAV_TYPE_GCS, M.MAV_AUTOPILOT_INVALID, 0, 0, M.MAV_STATE_ACTIVE)
     land = FlightMode.AUTO_LAND.custom_mode
@@ -301,8 +293,10 @@ def test_gcs_link_loss_failsafe_after_com_dl_loss_t_sim_seconds(client: MavClien
 
 
 @pytest.mark.parametrize("speed", SPEEDS)
-def test_offboard_loss_failsafe_after_com_of_loss_t_sim_seconds(client: MavClient, speed: float) -> None:
-    vt = _run(client, speed)
+def test_offboard_loss_failsafe_after_com_of_loss_t_sim_seconds(
+    client: MavClient, vehicle_factory: Callable[..., VehicleThread], speed: float
+) -> None:
+    vt = vehicle_factory(speed=speed)
     watch = Watch(client)
     hover = client.mav.set_position_target_local_ned_encode(
         0, 1, 1, M.MAV_FRAME_LOCAL_NED, 2552, 0.0, 0.0, -3.0, 0, 0, 0, 0, 0, 0, 0.0, 0

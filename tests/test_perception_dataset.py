@@ -194,5 +194,6 @@ def test_training_without_torch_names_the_extra(tmp_path: Path, cmd: str) -> Non
     r = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=120)
     assert r.returncode == 2
     assert r.stderr.strip() == (
-        f"viva-sitl perception {cmd}: this needs PyTorch, which is not installed: pip install 'viva-sitl[perception]'"
+        f"viva-sitl perception {cmd}: this needs PyTorch, which is not installed: pip install torch==2.13.0 && "
+        "pip install 'viva-sitl[perception]' (the CPU torch CI pins; an unpinned torch may pull GBs of CUDA wheels)"
     )

@@ -46,6 +46,7 @@ def test_on_ground_uses_the_box_centre() -> None:
     assert Detector.on_ground([], pos, att, params).shape == (0, 2)
 
 
+@pytest.mark.slow  # trains a detector
 @pytest.mark.e2e
 def test_export_token_training_and_detection(tmp_path: Path) -> None:
     pytest.importorskip(

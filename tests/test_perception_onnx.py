@@ -30,6 +30,7 @@ def test_onnx_without_onnxruntime_names_the_extra(tmp_path: Path) -> None:
     assert "best.onnx need onnxruntime" in line and "pip install 'viva-sitl[perception-onnx]'" in line
 
 
+@pytest.mark.slow  # trains and exports a detector
 @pytest.mark.e2e
 def test_onnx_export_detects_as_the_pt(tmp_path: Path) -> None:
     ultralytics = pytest.importorskip("ultralytics", reason="needs the perception-yolo extra")

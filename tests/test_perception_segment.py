@@ -13,7 +13,8 @@ from viva_sitl.camera import CameraParams, frame_camera_fields, ground_to_image_
 from viva_sitl.perception import PerceptionError
 
 torch = pytest.importorskip(
-    "torch", reason="the U-Net needs the perception extra: pip install 'viva-sitl[perception]'"
+    "torch",
+    reason="the U-Net needs the perception extra: pip install torch==2.13.0 && pip install 'viva-sitl[perception]'",
 )
 from viva_sitl.perception.segment import (  # noqa: E402
     GroundRisk,
@@ -214,6 +215,7 @@ def test_on_ground_follows_the_pose() -> None:
     )
 
 
+@pytest.mark.slow  # trains a U-Net from the CLI
 @pytest.mark.e2e
 def test_export_then_token_training_from_the_cli(tmp_path: Path) -> None:
     def run(*args: str) -> subprocess.CompletedProcess[str]:

@@ -168,7 +168,8 @@ def test_simulator_hook_upscales_only_when_low(interchange_video: Path, sr_dir: 
 
 def test_edsr_shapes_roundtrip_and_training_lowers_the_loss(tmp_path: Path) -> None:
     pytest.importorskip(
-        "torch", reason="EDSR needs the perception extra: pip install 'viva-sitl[perception]'"
+        "torch",
+        reason="EDSR needs the perception extra: pip install torch==2.13.0 && pip install 'viva-sitl[perception]'",
     )
     from viva_sitl.perception.edsr import EDSR, load_edsr, save_edsr, train_edsr
 
@@ -204,7 +205,8 @@ def test_edsr_shapes_roundtrip_and_training_lowers_the_loss(tmp_path: Path) -> N
 
 def test_train_sr_cli_writes_a_loadable_checkpoint(tmp_path: Path) -> None:
     pytest.importorskip(
-        "torch", reason="EDSR needs the perception extra: pip install 'viva-sitl[perception]'"
+        "torch",
+        reason="EDSR needs the perception extra: pip install torch==2.13.0 && pip install 'viva-sitl[perception]'",
     )
     out = tmp_path / "edsr.pt"
     r = subprocess.run(

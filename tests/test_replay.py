@@ -60,6 +60,7 @@ def run_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return work / "rec-run"
 
 
+@pytest.mark.slow  # shares a recorded viva-sitl flight
 def test_trajectory_log_is_the_flight_mavlink_reported(run_dir: Path) -> None:
     info = read_run_info(run_dir)
     assert info is not None and info["version"] == 1 and info["footage"] == "synthetic"
@@ -107,6 +108,7 @@ def test_trajectory_log_is_the_flight_mavlink_reported(run_dir: Path) -> None:
     assert checked > 100
 
 
+@pytest.mark.slow  # shares a recorded viva-sitl flight
 def test_replay_falls_back_to_the_tlog(run_dir: Path, tmp_path: Path) -> None:
     only_tlog = tmp_path / "tlog-only"
     only_tlog.mkdir()
@@ -241,6 +243,7 @@ def _wait(cond: Any, timeout_s: float, what: str) -> Any:
     raise AssertionError(f"timed out waiting for {what} (last {last!r})")
 
 
+@pytest.mark.slow  # a replay process of a recorded flight
 def test_flying_messages_are_refused_in_replay(replay: ReplayProcess) -> None:
     import aiohttp
 
@@ -271,6 +274,7 @@ def _psnr(a: np.ndarray, b: np.ndarray) -> float:  # type: ignore[type-arg]
     return 99.0 if mse == 0 else 10 * math.log10(255.0**2 / mse)
 
 
+@pytest.mark.slow  # a replay process + Chromium
 @pytest.mark.skipif(
     chromium_paths() is None, reason="Chromium absent: apt-get install chromium chromium-driver"
 )

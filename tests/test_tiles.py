@@ -393,6 +393,7 @@ def test_trilinear_beats_the_plain_warp_at_every_footprint_ratio() -> None:
     assert float(np.mean([r[1] - r[2] for r in rows])) > 0.5  # and better than one mip level on average
 
 
+@pytest.mark.slow  # kills and reruns an ingest process
 def test_a_killed_ingest_process_resumes_on_rerun(tmp_path: Path) -> None:
     """`viva-sitl footage ingest --tiles` SIGKILLed mid-way: the rerun continues after the last committed frame and
     ends with the same cache as an uninterrupted build."""

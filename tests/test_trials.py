@@ -346,6 +346,7 @@ def _csv_rows(path: Path) -> list[dict[str, str]]:
         return list(csv.DictReader(f))
 
 
+@pytest.mark.slow  # ~22 s of trials in a pool
 def test_inprocess_pilots_end_to_end_pool_determinism_and_single_trial(tmp_path: Path) -> None:
     spec = short_spec()
     scen = draw_scenarios(spec)
@@ -434,6 +435,7 @@ class MisbehavingPilot:
         return None
 
 
+@pytest.mark.slow  # ~24 s of trials
 def test_bad_inprocess_pilots_fail_their_trial_only(tmp_path: Path) -> None:
     spec = short_spec(n=4, timeout_s=20.0)
     camp = run_campaign(spec, "tests.test_trials:MisbehavingPilot", tmp_path, jobs=2, progress=False,
@@ -464,6 +466,7 @@ def test_footage_without_ground_truth_end_to_end(tmp_path: Path, nogt_clip: Path
     assert "unavailable" in (tmp_path / "report.html").read_text()
 
 
+@pytest.mark.slow  # Ctrl-C of a campaign
 def test_cli_interrupt_keeps_finished_trials_and_resume_completes(tmp_path: Path) -> None:
     import signal
 

@@ -66,6 +66,7 @@ def _leftovers(marker: str) -> list[str]:
     return [line for line in ps.splitlines() if marker in line and "ps -eo" not in line]
 
 
+@pytest.mark.slow  # a MAVSDK script as pilot
 def test_mavsdk_script_unchanged_as_pilot(tmp_path: Path) -> None:
     spec = spec_from_dict(
         {"trials": {"name": "mavsdk", "n": 2, "seed": 5, "timeout_s": 60.0, "speed": 4.0},
@@ -98,6 +99,7 @@ def test_mavsdk_script_unchanged_as_pilot(tmp_path: Path) -> None:
     assert _leftovers(str(tmp_path)) == []
 
 
+@pytest.mark.slow  # external pilots, each with its own viva-sitl
 def test_crashing_hanging_and_landing_external_pilots(tmp_path: Path) -> None:
     script = tmp_path / "pilot.py"
     script.write_text(PYMAVLINK_PILOT)
@@ -198,6 +200,7 @@ def _wait_for(cond: Any, timeout_s: float, what: str) -> Any:
     raise AssertionError(f"timed out after {timeout_s:.0f} s waiting for {what}")
 
 
+@pytest.mark.slow  # Ctrl-C of a campaign, ~35 s
 def test_ctrl_c_keeps_finished_trials_leaves_no_process_and_resume_completes(tmp_path: Path) -> None:
     script = tmp_path / "pilot.py"
     script.write_text(LANDING_PILOT)
@@ -266,6 +269,7 @@ def test_ctrl_c_keeps_finished_trials_leaves_no_process_and_resume_completes(tmp
     assert _procs(str(tmp_path)) == {}
 
 
+@pytest.mark.slow  # waits out the wall limit, ~35 s
 def test_pilot_that_never_lands_is_stopped_at_the_wall_limit_with_its_processes(tmp_path: Path) -> None:
     script = tmp_path / "hover.py"
     script.write_text(NEVER_LANDS_PILOT)

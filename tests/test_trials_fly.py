@@ -122,6 +122,7 @@ def _wait_for(cond: object, timeout_s: float, what: str) -> object:
     raise AssertionError(f"timed out after {timeout_s} s waiting for {what} (last: {last!r})")
 
 
+@pytest.mark.slow  # a real-time trial flown from the page
 @pytest.mark.skipif(
     chromium_paths() is None,
     reason="Chromium absent: apt-get install chromium chromium-driver (Debian) to run the browser tests",
@@ -208,6 +209,7 @@ def test_human_flies_a_trial_on_the_page_and_is_scored_like_a_program(tmp_path: 
     assert "WARNING" not in cmp.stdout and "3 only in B" in cmp.stdout, cmp.stdout
 
 
+@pytest.mark.slow  # a real-time trial
 def test_ctrl_c_aborts_the_trial_and_keeps_the_recording(tmp_path: Path) -> None:
     spec = tmp_path / "fly.toml"
     spec.write_text(SPEC)

@@ -22,6 +22,7 @@ def local_ray() -> Iterator[None]:
         ray.shutdown()
 
 
+@pytest.mark.slow  # starts a Ray cluster
 def test_ray_backend_matches_local_pool(tmp_path: Path, local_ray: None) -> None:
     spec = spec_from_dict(
         {"trials": {"name": "ray", "n": 3, "seed": 11, "timeout_s": 40.0},

@@ -104,6 +104,7 @@ def runs(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
     return d / "descend", d / "oracle"
 
 
+@pytest.mark.slow  # two real campaigns
 def test_report_and_compare_show_object_distances_as_in_results_json(
     tmp_path: Path, runs: tuple[Path, Path]
 ) -> None:
@@ -227,6 +228,7 @@ def nogt_spec(tmp_path: Path) -> Path:
     return spec
 
 
+@pytest.mark.slow  # a real campaign
 def test_without_ground_truth_object_distances_are_unavailable_not_zero(
     tmp_path: Path, nogt_spec: Path
 ) -> None:
@@ -325,6 +327,7 @@ def test_the_touchdown_figure_draws_the_risk_map_at_the_touchdown_times() -> Non
     assert risk_panels([row(0, 0.0, landed=False)], lambda t: 0) == []
 
 
+@pytest.mark.slow  # several CLI runs
 def test_bad_paths_and_pilots_are_one_line(tmp_path: Path) -> None:
     def one_line(r: subprocess.CompletedProcess[str], needle: str) -> None:
         err = r.stderr.strip()
@@ -405,6 +408,7 @@ def test_every_result_column_is_documented_with_unit_meaning_and_null() -> None:
             assert unit == {"_m_s": "m/s", "_deg": "deg", "_wh": "Wh", "_m": "m", "_s": "s"}[suffix], name
 
 
+@pytest.mark.slow  # two real campaigns + Chromium
 @pytest.mark.skipif(
     chromium_paths() is None, reason="Chromium absent: apt-get install chromium chromium-driver"
 )

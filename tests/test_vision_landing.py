@@ -28,7 +28,8 @@ pytestmark = pytest.mark.e2e
 @pytest.fixture(scope="module")
 def token_segmenter(tmp_path_factory: pytest.TempPathFactory) -> Path:
     pytest.importorskip(
-        "torch", reason="the segmenter needs the perception extra: pip install 'viva-sitl[perception]'"
+        "torch",
+        reason="the segmenter needs the perception extra: pip install torch==2.13.0 && pip install 'viva-sitl[perception]'",
     )
     d = tmp_path_factory.mktemp("seg")
     env_cmd = [sys.executable, "-m", "viva_sitl"]
@@ -73,6 +74,7 @@ criterion = { name = "safe", landed = true, max_risk_level = 2 }
 """
 
 
+@pytest.mark.slow  # a camera trial
 def test_vision_pilot_flies_off_the_road_and_lands_in_trials(tmp_path: Path, token_segmenter: Path) -> None:
     spec = tmp_path / "vision.toml"
     spec.write_text(SPEC)
@@ -154,6 +156,7 @@ def test_bad_detector_is_one_line(tmp_path: Path) -> None:
         assert r.returncode == 2 and len(err) == 1 and needle in err[0], (args, r.stderr)
 
 
+@pytest.mark.slow  # a viva-sitl process
 def test_lost_vehicle_is_a_clean_exit(tmp_path: Path, token_segmenter: Path, sitl_factory: Any) -> None:
     """Airborne, waiting for "land now" (far away): the vehicle process dies -> one FAILED line, exit 1."""
     from viva_sitl.evaluation.monitor import Limits
@@ -182,6 +185,7 @@ def test_lost_vehicle_is_a_clean_exit(tmp_path: Path, token_segmenter: Path, sit
     assert p.returncode == 1 and "FAILED: lost the vehicle: no telemetry for" in err, err
 
 
+@pytest.mark.slow  # a flight
 def test_stalled_pilot_takes_offboard_back_after_the_failsafe(
     tmp_path: Path, token_segmenter: Path, sitl_factory: Any
 ) -> None:
@@ -235,6 +239,7 @@ def test_stalled_pilot_takes_offboard_back_after_the_failsafe(
     assert p.returncode == 0 and "landed and disarmed" in text, text + err
 
 
+@pytest.mark.slow  # a pilot process
 def test_ctrl_c_is_a_clean_exit(token_segmenter: Path) -> None:
     p = subprocess.Popen(
         [sys.executable, str(SCRIPT), "udpin://127.0.0.1:9", "--now", "--segmenter", str(token_segmenter)],
@@ -249,6 +254,7 @@ def test_ctrl_c_is_a_clean_exit(token_segmenter: Path) -> None:
     assert p.returncode == 130 and "interrupted (Ctrl-C)" in err and "Traceback" not in err, err
 
 
+@pytest.mark.slow  # trains a detector
 def test_detections_become_keep_out_discs_on_the_ground(tmp_path: Path) -> None:
     """Detector only (no segmenter): every detected person/vehicle is a level-5 disc of its buffer on the ground,
     where the frame's pose puts it; the spot chosen keeps out of all of them."""

@@ -18,6 +18,7 @@ REPO = Path(__file__).resolve().parents[1]
 COPY_IGNORE = (".git", "build", "dist", "*.egg-info", "runs", ".venv", "__pycache__", ".*_cache", "shared")
 
 
+@pytest.mark.slow  # builds and installs a wheel
 @pytest.mark.timeout(600)
 def test_catalog_from_a_wheel_install(tmp_path: Path) -> None:
     # build from a copy of the source (an in-tree build would leave build/ and *.egg-info in the checkout)

@@ -240,6 +240,7 @@ def _run(args: argparse.Namespace) -> int:
 
     _print_summary(read_results(out))
     print(f"  report: {out / 'report.html'}  results: {out / 'results.csv'}, {out / 'results.json'}")
+    _say_if_no_figures("  ")
     ran = {s.index for s in camp.scenarios}
     beyond = [k for k in finished_trials(out) if k not in ran]
     if beyond:  # e.g. --resume --trial 2 in a run of 4: the others' results stay on disk, outside this report
@@ -289,6 +290,7 @@ def _fly(args: argparse.Namespace) -> int:
         f"  results: {out / 'results.json'}, {out / 'results.csv'}  replay: viva-sitl replay {tdir}",
         flush=True,
     )
+    _say_if_no_figures("  ")
     return 130 if row["end"] == "aborted" else 0
 
 
@@ -347,7 +349,16 @@ def _report(args: argparse.Namespace) -> int:
     tmp.write_text(render_html(doc, out))
     tmp.replace(out / "report.html")
     print(f"report: {out / 'report.html'} ({doc['trials_done']} of {doc['trials_total']} trials)")
+    _say_if_no_figures("")
     return 0
+
+
+def _say_if_no_figures(indent: str) -> None:
+    from viva_sitl.evaluation.report import figures_missing_note
+
+    note = figures_missing_note()
+    if note:
+        print(indent + note)
 
 
 def _show(args: argparse.Namespace) -> int:

@@ -25,6 +25,17 @@ from viva_sitl.evaluation.scoring import COLUMNS, OLDER_SCHEMAS, SCHEMA
 from viva_sitl.evaluation.spec import Criterion
 from viva_sitl.evaluation.stats import aggregate, paired
 
+FIGURES_HINT = "pip install 'viva-sitl[trials]'"  # matplotlib, which draws the report's figures
+
+
+def figures_missing_note() -> str | None:
+    """One line for the console when matplotlib is absent (report.html then has its tables but no figures)."""
+    try:
+        import matplotlib  # noqa: F401
+    except ImportError:
+        return f"note: report.html has no figures: they need matplotlib ({FIGURES_HINT})"
+    return None
+
 
 def write_reports(camp: Campaign) -> None:
     out = camp.out_dir
@@ -383,13 +394,9 @@ def render_html(doc: dict[str, Any], out_dir: Path) -> str:
                      f"<td>{_fmt(s['p10'])}</td><td>{_fmt(s['p90'])}</td><td>{_fmt(s['min'])}</td>"
                      f"<td>{_fmt(s['max'])}</td></tr>")  # fmt: skip
     parts.append("</table></div>")
-    try:
-        import matplotlib  # noqa: F401
-
-        figs = True
-    except ImportError:
-        figs = False
-        parts.append("<p>(figures need matplotlib: <code>pip install 'viva-sitl[trials]'</code>)</p>")
+    figs = figures_missing_note() is None
+    if not figs:
+        parts.append(f"<p>(figures need matplotlib: <code>{FIGURES_HINT}</code>)</p>")
     if figs and rows:
         parts.append("<h2>Touchdown points</h2>")
         for footage in sorted({r["footage"] for r in rows}):

@@ -4,7 +4,12 @@ from __future__ import annotations
 
 from types import ModuleType
 
-INSTALL_HINT = "pip install 'viva-sitl[perception]'"
+# torch pinned to the CPU wheel CI installs (0.9 GB): an unpinned torch may resolve to a CUDA build with GBs of
+# nvidia wheels (README, Perception)
+INSTALL_HINT = (
+    "pip install torch==2.13.0 && pip install 'viva-sitl[perception]' "
+    "(the CPU torch CI pins; an unpinned torch may pull GBs of CUDA wheels)"
+)
 INSTALL_HINT_YOLO = "pip install 'viva-sitl[perception-yolo]'"
 INSTALL_HINT_ONNX = "pip install 'viva-sitl[perception-onnx]'"
 

@@ -204,7 +204,7 @@ def detector_tracks(
         from ultralytics import YOLO  # type: ignore[import-not-found,unused-ignore]
     except ImportError:
         raise FootageError(
-            "--method detector needs ultralytics: pip install 'viva-sitl[perception]' (or use --method motion)"
+            "--method detector needs ultralytics: pip install 'viva-sitl[perception-yolo]' (or use --method motion)"
         ) from None
     if not Path(weights).is_file():
         raise FootageError(f"detector weights not found: {weights}")
