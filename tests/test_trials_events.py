@@ -12,7 +12,7 @@ from viva_sitl.evaluation.campaign import run_campaign
 from viva_sitl.evaluation.episode import LAND_NOW_REPEAT_S
 from viva_sitl.evaluation.spec import spec_from_dict
 
-pytestmark = pytest.mark.e2e
+pytestmark = [pytest.mark.e2e, pytest.mark.slow]  # two trials with a 3 s pilot start each
 
 # A pymavlink pilot that starts slowly (a 3 s import), then lands on the N-th "land now" it hears (argv[2]).
 SLOW_PILOT = r"""
