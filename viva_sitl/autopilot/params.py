@@ -222,6 +222,8 @@ _WIRED_TABLE: tuple[tuple[str, ParamType, float, float, float, str], ...] = (
         "Sim: battery current at hover thrust (A), proportional to thrust",
     ),
     ("SIM_BAT_MIN_PCT", _F, 50.0, 0.0, 100.0, "Sim: battery never drains below this (%), as PX4 SITL"),
+    # --- failure injection (autopilot/failures.py)
+    ("SYS_FAILURE_EN", _I, 0, 0, 1, "MAV_CMD_INJECT_FAILURE accepted (1) or denied (0)"),
     # --- the EAV airframe (see Autopilot.eav_params)
     ("SIM_MASS", _F, 0.468, 0.01, 100.0, "Sim: EAV mass m (kg)"),
     ("SIM_DRAG", _F, 0.15, 0.0, 100.0, "Sim: EAV linear drag k_d (N s/m)"),
