@@ -14,6 +14,7 @@ import contextlib
 import dataclasses
 import json
 import logging
+import os
 import signal
 import sys
 import time
@@ -42,8 +43,10 @@ from viva_sitl.geo import GeoOrigin, home_from_env
 from viva_sitl.mavlink import CameraInfo, CaptureResult, MavlinkEndpoint, StreamEncoding, VideoStreamSpec
 from viva_sitl.mavlink.config import EndpointStartError
 from viva_sitl.perception.from_config import super_resolution_from_config
+from viva_sitl.pilotwatch import PilotTree, owner_of_udp_port, process_group, supported, zmq_io_threads
 from viva_sitl.recording import TRAJECTORY_FILE, Sample, TrajectoryRecorder, write_run_info
 from viva_sitl.sim import Simulator
+from viva_sitl.timing import QUANTUM_S, WATCH_PERIOD_S, LockstepClock, PilotGate, Timing, TimingStats
 from viva_sitl.vehicle import Vehicle
 from viva_sitl.video import FrameScheduler, VideoPipeline
 from viva_sitl.world import world_from_source
@@ -124,6 +127,15 @@ class SitlApp:
         self._stopping = asyncio.Event()
         self._physics_task: asyncio.Task[None] | None = None
         self.flightlog: FlightLog | None = None  # the run's PX4 ULog (flightlog.py), opened by run()
+        # --- timing (viva_sitl.timing): realtime, lockstep or charged ------------------------------------
+        self.timing = Timing(config.timing)
+        self.timing_stats = TimingStats(
+            self.timing, config.speed, config.pilot_cpu_factor if self.timing is Timing.CHARGED else None
+        )
+        self.pilot_pid: int | None = None  # --pilot-pid; else found from the first MAVLink message's sender
+        self._pilot_tree: PilotTree | None = None
+        if self.trial is not None:
+            self.trial.timing = self.timing_stats.to_dict
 
     # --- VehicleLink ----------------------------------------------------------------------
     @property
@@ -209,7 +221,102 @@ class SitlApp:
         """The paced physics loop; a trial (`--scenario`) first holds the clock at 0 until the pilot connects."""
         if self.trial is not None:
             await self._wait_for_pilot()
-        await run_paced(self.pacer, self._step_once, self._after_batch)
+        if self.timing is Timing.REALTIME:
+            watch = asyncio.create_task(self._watch_pilot(), name="viva-pilot-watch")
+            try:
+                await run_paced(self.pacer, self._step_once, self._after_batch)
+            finally:
+                watch.cancel()
+        else:
+            await self._physics_lockstep()
+
+    def _find_pilot(self) -> PilotTree | None:
+        """The pilot's process group: --pilot-pid's, else the owner's of the local UDP port its MAVLink came from."""
+        if self._pilot_tree is not None:
+            return self._pilot_tree
+        pid = self.pilot_pid
+        if pid is None:
+            for _, (host, port), _age in self.endpoint.peers_heard():
+                if host.startswith("127.") or host in ("::1", "localhost"):
+                    pid = owner_of_udp_port(port)
+                    if pid is not None:
+                        break
+        if pid is None:
+            return None
+        pgid = process_group(pid)
+        if pgid is None or pgid == os.getpgid(0):
+            # the pilot shares our process group (started by the same shell job): watch the pilot's process alone
+            pgid = pid if pgid is not None else None
+        if pgid is None:
+            return None
+        extra = zmq_io_threads() if self.video is not None and self.video.publisher is not None else ()
+        self._pilot_tree = PilotTree(pgid, extra_threads=extra, exclude=(os.getpid(),))
+        self.timing_stats.pilot_pid = pid
+        log.info("timing %s: watching the pilot's process group %d (pid %d)", self.timing.value, pgid, pid)
+        return self._pilot_tree
+
+    async def _watch_pilot(self) -> None:
+        """Realtime: read the pilot's CPU time and run-queue delay now and then (what it experienced)."""
+        if supported():
+            return
+        while True:
+            await asyncio.sleep(WATCH_PERIOD_S)
+            tree = self._find_pilot()
+            if tree is not None:
+                self.timing_stats.observe(tree.sample(time.monotonic()))
+
+    async def _physics_lockstep(self) -> None:
+        """Lockstep / charged (viva_sitl.timing): a quantum of physics, then wait until the pilot is idle."""
+        why = supported()
+        if why:
+            log.error("%s: running in realtime instead", why)
+            self.timing_stats.note = why
+            await run_paced(self.pacer, self._step_once, self._after_batch)
+            return
+        dt = self.vehicle.dt_s
+        clock = LockstepClock(dt, self.config.speed)
+        clock.start()
+        q_steps = max(1, round(QUANTUM_S / dt))
+        charged = self.timing is Timing.CHARGED
+        factor = self.config.pilot_cpu_factor
+        video = self.video if self.scheduler is not None else None
+        frame_period = 1.0 / self.config.video.fps
+        next_frame_t = self.sim.state.time_s
+        tick = 0
+        gate: PilotGate | None = None
+        while True:
+            wait = clock.wall_until_due_s()
+            if wait > 0:
+                await asyncio.sleep(
+                    wait
+                )  # the pilot is idle: the clock runs at `speed`; messages arrive meanwhile
+            for _ in range(q_steps):
+                if charged:
+                    self.endpoint.release_due(self.sim.state.time_s)
+                self._step_once()
+                if video is not None and self.sim.state.time_s + 1e-9 >= next_frame_t:
+                    next_frame_t += frame_period
+                    self.state_wall_time_s = time.time()
+                    video.submit(self._render_tick(tick))  # a frame at an exact sim time, not a wall tick
+                    tick += 1
+            clock.mark_done(q_steps)
+            self._after_batch()
+            if gate is None:
+                tree = self._find_pilot()
+                if tree is None:
+                    continue  # no pilot yet: the clock runs at `speed`
+                gate = PilotGate(tree, self.timing_stats)
+                if charged:
+                    self.endpoint.hold_incoming(True)
+            t0 = time.monotonic()
+            cpu_s = await gate.wait_idle(ready=video.idle if video is not None else lambda: True)
+            clock.frozen(time.monotonic() - t0)
+            self.timing_stats.quanta += 1
+            if charged:
+                charge = cpu_s * factor
+                self.endpoint.stamp_held(self.sim.state.time_s + charge)
+                clock.charge(charge)
+                self.timing_stats.charged_sim_s += charge
 
     async def _wait_for_pilot(self) -> None:
         """Simulated time stands still until the first MAVLink message from the pilot arrives (a pilot that starts
@@ -272,7 +379,8 @@ class SitlApp:
         await self.endpoint.start()
         if self.video is not None and self.scheduler is not None:
             self.video.start()
-            self.scheduler.start()
+            if self.timing is Timing.REALTIME:  # lockstep renders in the physics loop, at sim-time ticks
+                self.scheduler.start()
         self._physics_task = asyncio.create_task(self._physics(), name="viva-physics")
         if ready:
             self._print_ready()
@@ -359,6 +467,7 @@ class SitlApp:
         }
         if self.pilot_wait_wall_s is not None:
             stats["pilot_wait_wall_s"] = self.pilot_wait_wall_s
+        stats["timing"] = self.timing_stats.to_dict()
         if self.scheduler is not None:
             render = self.scheduler.stats()
             stats["render"] = render
@@ -388,6 +497,10 @@ def config_from_args(args: argparse.Namespace) -> SimConfig:
         sim_updates["footage"] = args.footage
     if args.speed is not None:
         sim_updates["speed"] = args.speed
+    if getattr(args, "timing", None) is not None:
+        sim_updates["timing"] = args.timing
+    if getattr(args, "pilot_cpu_factor", None) is not None:
+        sim_updates["pilot_cpu_factor"] = args.pilot_cpu_factor
     if args.seed is not None:
         sim_updates["seed"] = args.seed
     # placement, as PX4 SITL: --home, else [sim] home, else PX4_HOME_LAT/LON/ALT, else the footage's own place
@@ -453,6 +566,9 @@ def run_from_args(args: argparse.Namespace) -> int:
         print(f"viva-sitl: {exc}", file=sys.stderr)
         return 2
     scenario = read_scenario_file(args.scenario) if getattr(args, "scenario", None) else None
+    if cfg.timing != "realtime" and supported():
+        print(f"viva-sitl: {supported()}", file=sys.stderr)
+        return 2
     app = SitlApp(
         cfg,
         video=not args.no_video,
@@ -460,6 +576,7 @@ def run_from_args(args: argparse.Namespace) -> int:
         dashboard=dashboard_config_from_args(args, cfg.mavlink.instance),
         scenario=scenario,
     )
+    app.pilot_pid = getattr(args, "pilot_pid", None)
 
     async def main() -> None:
         loop = asyncio.get_running_loop()

@@ -53,6 +53,21 @@ def build_parser() -> argparse.ArgumentParser:
         type=positive_float,
         help="sim seconds per wall second (default 1); MAVLink rates and timers are per sim second, as PX4 lockstep",
     )
+    run.add_argument(
+        "--timing", choices=("realtime", "lockstep", "charged"),
+        help="how sim time relates to the pilot's computing (default realtime): lockstep stops the clock while the "
+        "pilot (the local process that sends MAVLink, and its process group) computes; charged also bills its CPU "
+        "time x --pilot-cpu-factor in sim time (README: Timing)",
+    )  # fmt: skip
+    run.add_argument(
+        "--pilot-cpu-factor", type=float, metavar="F",
+        help="charged timing: sim seconds billed per CPU second of the pilot (2 = a computer 2x slower; default 1)",
+    )  # fmt: skip
+    run.add_argument(
+        "--pilot-pid", type=int, metavar="PID",
+        help="lockstep/charged: watch this process's group as the pilot (default: the owner of the local UDP port "
+        "the first MAVLink message came from)",
+    )  # fmt: skip
     run.add_argument("--seed", type=int, help="random seed (disturbances, sensor noise)")
     run.add_argument("--duration", type=positive_float, help="stop after this many wall-clock seconds")
     run.add_argument(

@@ -134,6 +134,10 @@ class SimConfig:
     footage: str = "synthetic"  # catalog name or path
     seed: int = 0
     speed: float = 1.0  # sim seconds per wall second for `run`
+    # how sim time relates to an external pilot's computing (viva_sitl.timing): realtime | lockstep | charged;
+    # charged bills the pilot's CPU seconds x pilot_cpu_factor in sim time (2: a computer 2x slower than this one)
+    timing: str = "realtime"
+    pilot_cpu_factor: float = 1.0
     initial_pos_ned_m: tuple[float, float, float] = (0.0, 0.0, 0.0)  # start on the ground at the origin
     initial_yaw_deg: float = 0.0
     # where the NED origin (footage centre) is on Earth: places ANY footage there (None: the footage's own
@@ -153,6 +157,10 @@ class SimConfig:
     def __post_init__(self) -> None:
         if not (self.speed > 0.0 and math.isfinite(self.speed)):
             raise ConfigError(f"sim.speed must be a positive number, got {self.speed!r}")
+        if self.timing not in ("realtime", "lockstep", "charged"):
+            raise ConfigError(f"sim.timing must be realtime, lockstep or charged, got {self.timing!r}")
+        if not (self.pilot_cpu_factor >= 0.0 and math.isfinite(self.pilot_cpu_factor)):
+            raise ConfigError(f"sim.pilot_cpu_factor must be a number >= 0, got {self.pilot_cpu_factor!r}")
         for key in ("footage_alt_m", "footage_hfov_deg", "footage_gsd_m_per_px"):
             v = getattr(self, key)
             if v is not None and not (v > 0.0 and math.isfinite(v)):

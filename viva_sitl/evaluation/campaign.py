@@ -54,7 +54,9 @@ def default_wall_limit_s(spec: TrialSpec, pilot: str) -> float:
     """Wall seconds one trial may take before it is stopped: generous (loaded machines), finite (hung pilots)."""
     if is_inprocess(pilot):
         return 120.0 + 4.0 * spec.timeout_s
-    return 90.0 + 3.0 * spec.timeout_s / spec.speed
+    from viva_sitl.evaluation.external import trial_wall_limit_s
+
+    return trial_wall_limit_s(spec)
 
 
 def run_one(spec: TrialSpec, scenario: Scenario, pilot: str, out_dir: Path, slot: int, video: bool) -> Row:
@@ -406,10 +408,14 @@ def _importable_cwd() -> None:
         sys.path.insert(0, cwd)
 
 
+MEASURED_COLUMNS = ("wall_s", "pilot_cpu_s", "pilot_run_delay_s")  # what the machine did, not what was flown
+
+
 def rows_equal(a: list[Row], b: list[Row]) -> bool:
-    """Same results apart from wall time (what 'identical whatever the backend and job count' means)."""
-    strip = [{k: v for k, v in r.items() if k != "wall_s"} for r in a]
-    strip_b = [{k: v for k, v in r.items() if k != "wall_s"} for r in b]
+    """Same results apart from wall time and the pilot's measured CPU (what 'identical whatever the backend and
+    job count' means)."""
+    strip = [{k: v for k, v in r.items() if k not in MEASURED_COLUMNS} for r in a]
+    strip_b = [{k: v for k, v in r.items() if k not in MEASURED_COLUMNS} for r in b]
     return strip == strip_b
 
 

@@ -62,6 +62,17 @@ def build_parser() -> argparse.ArgumentParser:
         help="external pilots: the `viva-sitl run --speed` factor (default: the spec's trials.speed); a slow "
         "pilot (e.g. CPU vision) needs a lower one; the scenarios do not change",
     )  # fmt: skip
+    r.add_argument(
+        "--timing", choices=("realtime", "lockstep", "charged"),
+        help="external pilots: the trials' clock (default: the spec's trials.timing, else realtime). lockstep: sim "
+        "time stands still while the pilot computes (scores independent of the machine and its load); charged: "
+        "lockstep + the pilot's CPU time x --pilot-cpu-factor billed in sim time (README: Timing)",
+    )  # fmt: skip
+    r.add_argument(
+        "--pilot-cpu-factor", type=float, metavar="F",
+        help="charged timing: sim seconds per CPU second of the pilot (2 = a companion computer 2x slower than "
+        "this CPU; default: the spec's trials.pilot_cpu_factor, else 1)",
+    )  # fmt: skip
     r.add_argument("--no-progress", action="store_true", help="no progress bar")
     from viva_sitl.evaluation.human import MAVSDK_API_PORT, QGC_GCS_PORT, QGC_VIDEO_PORT
 
@@ -218,6 +229,12 @@ def _run(args: argparse.Namespace) -> int:
         if not (math.isfinite(args.speed) and args.speed > 0):
             raise ValueError(f"--speed must be a positive number, got {args.speed:g}")
         spec = dataclasses.replace(spec, speed=args.speed)
+    if args.timing is not None:
+        spec = dataclasses.replace(spec, timing=args.timing)
+    if args.pilot_cpu_factor is not None:
+        if not (math.isfinite(args.pilot_cpu_factor) and args.pilot_cpu_factor >= 0):
+            raise ValueError(f"--pilot-cpu-factor must be a number >= 0, got {args.pilot_cpu_factor:g}")
+        spec = dataclasses.replace(spec, pilot_cpu_factor=args.pilot_cpu_factor)
     pilot = args.pilot or spec.pilot
     check_external_pilot(pilot)
     safe = "".join(ch if ch.isalnum() or ch in "-_" else "_" for ch in pilot.split("/")[-1])[:40]

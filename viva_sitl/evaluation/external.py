@@ -136,6 +136,14 @@ class _Pump(threading.Thread):
         return " | ".join([x.strip() for x in self.tail if x.strip()][-k:])
 
 
+def trial_wall_limit_s(spec: TrialSpec) -> float:
+    """Wall seconds an external trial may take: 3x its sim timeout at its speed, more when the clock stops for
+    the pilot's computing (lockstep / charged: a pilot computing 300 ms per frame at 30 fps runs at 0.1x)."""
+    if spec.timing == "realtime":
+        return 90.0 + 3.0 * spec.timeout_s / spec.speed
+    return 120.0 + 20.0 * spec.timeout_s / min(spec.speed, 1.0)
+
+
 def pilot_command(template: str, values: dict[str, str]) -> list[str]:
     try:
         return [part.format(**values) for part in shlex.split(template)]
@@ -187,6 +195,8 @@ def run_external_trial(
         "--api-local-port", str(api_local), "--gcs-local-port", str(gcs_local), "--video-port", str(rtp),
         "--frame-socket", frame_url, "--run-dir", str(trial_dir),
     ]  # fmt: skip
+    if spec.timing != "realtime":
+        sitl_cmd += ["--timing", spec.timing, "--pilot-cpu-factor", f"{spec.pilot_cpu_factor:g}"]
     sitl_cmd += list(sitl_args)
     if video:
         sitl_cmd += ["--record", str(trial_dir / "vac.mp4")]
@@ -202,7 +212,7 @@ def run_external_trial(
     env = dict(os.environ)
     env.update({f"VIVA_SITL_{k.upper()}": v for k, v in values.items() if k != "python"})
     env["PYTHONUNBUFFERED"] = "1"
-    limit = wall_limit_s if wall_limit_s is not None else 90.0 + 3.0 * spec.timeout_s / spec.speed
+    limit = wall_limit_s if wall_limit_s is not None else trial_wall_limit_s(spec)
     sitl: subprocess.Popen[bytes] | None = None
     pilot: subprocess.Popen[bytes] | None = None
     end_override: tuple[str, str] | None = None
@@ -308,5 +318,21 @@ def run_external_trial(
         log.events.append({"t_s": log.end_t_s, "kind": "pilot", "text": pilot_note, "severity": 6})
     log.write(trial_dir)
     row = score_trial(scenario, log, world_of(scenario.footage), spec)
+    add_timing_columns(row, spec.timing, log.timing)
     row["wall_s"] = round(time.perf_counter() - wall0, 3)
     return row
+
+
+def add_timing_columns(row: dict[str, Any], timing: str, record: dict[str, Any] | None) -> None:
+    """The clock a trial ran on and what its pilot experienced (end.json "timing", viva_sitl.timing):
+    timing_ok False marks a trial whose result depended on the machine (a starved realtime pilot, a lockstep
+    pilot never idle, or no pilot process found to watch)."""
+    rec = record or {}
+    row["timing"] = timing
+    row["pilot_cpu_factor"] = rec.get("pilot_cpu_factor")
+    row["pilot_cpu_s"] = rec.get("pilot_cpu_s")
+    row["pilot_run_delay_s"] = rec.get("pilot_run_delay_s")
+    if timing == "realtime":
+        row["timing_ok"] = None if not rec.get("pilot_pid") else not rec.get("starved", False)
+    else:
+        row["timing_ok"] = bool(rec.get("lockstep_held", False))

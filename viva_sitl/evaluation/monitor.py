@@ -96,6 +96,7 @@ class TrialLog:
     reaction_t_s: float | None = (
         None  # the pilot's first action after "land now" (external pilots; see episode.py)
     )
+    timing: dict[str, Any] | None = None  # external pilots: the trial's clock and the pilot's CPU (timing.py)
 
     def write(self, trial_dir: Path) -> None:
         trial_dir.mkdir(parents=True, exist_ok=True)
@@ -116,6 +117,7 @@ class TrialLog:
             "energy_wh": round(self.energy_wh, 6), "outside_s": round(self.outside_s, 6),
             "path_m": round(self.path_m, 6), "land_now_t_s": self.land_now_t_s,
             **({} if self.reaction_t_s is None else {"reaction_t_s": self.reaction_t_s}),
+            **({} if self.timing is None else {"timing": self.timing}),
         }  # fmt: skip
 
     @classmethod
@@ -137,6 +139,7 @@ class TrialLog:
         log.energy_wh, log.outside_s, log.path_m = s["energy_wh"], s["outside_s"], s["path_m"]
         log.land_now_t_s = s["land_now_t_s"]
         log.reaction_t_s = s.get("reaction_t_s")
+        log.timing = s.get("timing")
         return log
 
 

@@ -56,7 +56,7 @@ class Campaign:
     interrupted: bool = False
     backend: str = "local"
     jobs: int = 1
-    timing: str = "realtime"  # what clock the trials ran on (the only one today)
+    timing: str | None = None  # what clock the trials ran on (None: from the pilot's kind and the spec)
 
     @property
     def complete(self) -> bool:
@@ -130,14 +130,19 @@ def versions(pilot: str) -> dict[str, str]:
 
 
 def run_record(
-    spec: TrialSpec, pilot: str, timing: str = "realtime", *, human: bool = False
+    spec: TrialSpec, pilot: str, timing: str | None = None, *, human: bool = False
 ) -> dict[str, Any]:
+    """timing: the clock the trials ran on (None: an in-process pilot is stepped in lockstep, its computing not
+    billed; an external one runs on the spec's trials.timing; a person flies in realtime)."""
     from viva_sitl.evaluation.pilots import is_inprocess
 
     kind = "human" if human else "in-process" if is_inprocess(pilot) else "external"
+    if timing is None:
+        timing = "realtime" if human else "lockstep" if kind == "in-process" else spec.timing
     return {
         "spec_name": spec.name, "spec_hash": spec_hash(spec), "seed": spec.seed, "n": spec.n, "pilot": pilot, "pilot_kind": kind,
-        "timing": timing, "speed": spec.speed, "versions": versions(pilot), "python_executable": sys.executable,
+        "timing": timing, "pilot_cpu_factor": spec.pilot_cpu_factor if timing == "charged" else None,
+        "speed": spec.speed, "versions": versions(pilot), "python_executable": sys.executable,
     }  # fmt: skip
 
 

@@ -37,11 +37,21 @@ null = unavailable, never zero):
                                                         was judged and passed
     criterion_failures                                  which checks failed ("; "-joined)
     criterion_unavailable                               which checks could not be judged, and why ("; "-joined)
-    wall_s                                              wall time of the trial (the only non-deterministic column)
+    timing                                              the trial's clock: lockstep (in-process pilots, and
+                                                        external ones with timing = "lockstep"), charged, realtime
+    pilot_cpu_factor                                    charged: sim s billed per CPU s of the pilot (else null)
+    pilot_cpu_s, pilot_run_delay_s                      external pilots: CPU seconds its processes used, and
+                                                        seconds they were runnable with no CPU (machine load)
+    timing_ok                                           false: the result depended on the machine (realtime: the
+                                                        pilot was starved of CPU; lockstep/charged: the pilot was
+                                                        never idle, or no pilot process could be watched)
+    wall_s                                              wall time of the trial (the only non-deterministic column
+                                                        of in-process trials; external: see timing.py)
 
 v2 (from v1): + dist_object_m, min_dist_object_m, objects_present. v3 (from v2): + criterion_unavailable; person /
 vehicle / object scores and *_present are null where the footage did not annotate the class (v2 said "none
-present" and passed the criterion). report.read_results reads v1 and v2 files too (the new columns null).
+present" and passed the criterion). v4 (from v3): + timing, pilot_cpu_factor, pilot_cpu_s, pilot_run_delay_s,
+timing_ok. report.read_results reads v1-v3 files too (the new columns null).
 """
 
 from __future__ import annotations
@@ -55,8 +65,8 @@ from viva_sitl.evaluation.monitor import TRAJECTORY_COLUMNS, TrialLog
 from viva_sitl.evaluation.spec import Criterion, Scenario, TrialSpec
 from viva_sitl.world import ALL, PEOPLE, VEHICLES, WorldModel
 
-SCHEMA = "vivasitl.trials.v3"
-OLDER_SCHEMAS = ("vivasitl.trials.v1", "vivasitl.trials.v2")  # readable: rows lack the columns added since
+SCHEMA = "vivasitl.trials.v4"
+OLDER_SCHEMAS = ("vivasitl.trials.v1", "vivasitl.trials.v2", "vivasitl.trials.v3")  # readable: rows lack the columns added since
 COLUMNS = (
     "trial", "pilot", "seed", "footage", "start", "start_north_m", "start_east_m", "start_altitude_m",
     "start_yaw_deg", "footage_time_s", "land_at_s", "wind_speed_m_s", "failures", "end", "end_detail", "end_t_s",
@@ -64,7 +74,8 @@ COLUMNS = (
     "touchdown_horizontal_speed_m_s", "touchdown_speed_m_s", "dist_person_m", "dist_vehicle_m", "min_dist_person_m",
     "min_dist_vehicle_m", "dist_object_m", "min_dist_object_m", "risk_level", "time_to_land_s", "flight_time_s",
     "path_length_m", "energy_wh", "time_outside_footage_s", "failsafes", "failsafe_texts", "gt_objects", "gt_risk", "persons_present",
-    "vehicles_present", "objects_present", "success", "criterion_failures", "criterion_unavailable", "wall_s",
+    "vehicles_present", "objects_present", "success", "criterion_failures", "criterion_unavailable", "timing", "pilot_cpu_factor", "pilot_cpu_s",
+    "pilot_run_delay_s", "timing_ok", "wall_s",
 )  # fmt: skip
 _I = {c: k for k, c in enumerate(TRAJECTORY_COLUMNS)}
 
@@ -92,7 +103,7 @@ def score_trial(
         failures=";".join(f"{f.kind}@{f.at_s:g}" for f in sc.failures),
         end=log.end, end_detail=log.end_detail, end_t_s=_r(log.end_t_s), landed=log.end == "landed",
         flight_time_s=_r(log.end_t_s), path_length_m=_r(log.path_m, 3), energy_wh=_r(log.energy_wh, 5),
-        time_outside_footage_s=_r(log.outside_s, 3),
+        time_outside_footage_s=_r(log.outside_s, 3), timing="lockstep", timing_ok=True,
     )  # fmt: skip
     fs = [e["text"] for e in log.events if e["kind"] == "failsafe"]
     row["failsafes"], row["failsafe_texts"] = len(fs), "; ".join(fs)

@@ -15,7 +15,9 @@ from __future__ import annotations
 import dataclasses
 import json
 import time
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 from viva_sitl.config import ConfigError
 from viva_sitl.evaluation.ends import TrialEnd
@@ -61,6 +63,8 @@ class ScenarioSession:
         self.monitor = self.episode.monitor
         self.finished = False
         self._ended_wall_s: float | None = None
+        # what the pilot's clock was (viva_sitl.timing.TimingStats.to_dict), into end.json at the end
+        self.timing: Callable[[], dict[str, Any]] | None = None
 
     @property
     def done(self) -> bool:
@@ -79,6 +83,8 @@ class ScenarioSession:
     def _write(self) -> None:
         self.finished = True
         self._ended_wall_s = time.monotonic()
+        if self.timing is not None:
+            self.monitor.log.timing = self.timing()
         self.monitor.log.write(self.run_dir)
         print(f"{TRIAL_PREFIX} {json.dumps(self.monitor.log.summary())}", flush=True)
 

@@ -24,7 +24,7 @@ import logging
 import math
 import socket
 import time
-from collections import OrderedDict
+from collections import OrderedDict, deque
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from typing import Any
@@ -148,6 +148,8 @@ class MavlinkEndpoint:
         self._links: dict[LinkKind, _Link] = {}
         self._tasks: list[asyncio.Task[None]] = []
         self._listeners: list[EventListener] = []
+        self._holding = False  # charged timing: received datagrams wait in _held (due sim time, link, data, peer)
+        self._held: deque[tuple[float | None, LinkKind, bytes, tuple[str, int]]] = deque()
         self._statustext_id = 0
         self._last_setpoint_warn = -math.inf
         self._loop: asyncio.AbstractEventLoop | None = None
@@ -451,7 +453,43 @@ class MavlinkEndpoint:
                 listener(text, int(severity))
 
     # --- receiving --------------------------------------------------------------------------
+    # --- charged timing (viva_sitl.timing): what the pilot sends while it computes takes effect later ----------
+    def hold_incoming(self, on: bool) -> None:
+        """Hold every received datagram instead of handling it (charged timing); `release_due` hands them on.
+        Turning it off handles whatever is held at once."""
+        self._holding = on
+        if not on:
+            held, self._held = self._held, deque()
+            for _, kind, data, addr in held:
+                self._handle_datagram(kind, data, addr)
+
+    def stamp_held(self, due_s: float) -> int:
+        """Give the held datagrams not yet stamped the simulation time they take effect at; returns how many."""
+        n = 0
+        last = self._held[0][0] if self._held and self._held[0][0] is not None else -math.inf
+        for k, (due, kind, data, addr) in enumerate(self._held):
+            if due is None:
+                last = max(last, due_s)  # never before one received earlier: order is kept
+                self._held[k] = (last, kind, data, addr)
+                n += 1
+            else:
+                last = due
+        return n
+
+    def release_due(self, now_s: float) -> None:
+        """Handle the held datagrams stamped at or before simulation time `now_s`, in the order received."""
+        held = self._held
+        while held and held[0][0] is not None and held[0][0] <= now_s:
+            _, kind, data, addr = held.popleft()
+            self._handle_datagram(kind, data, addr)
+
     def _on_datagram(self, kind: LinkKind, data: bytes, addr: tuple[str, int]) -> None:
+        if self._holding:
+            self._held.append((None, kind, data, addr))
+            return
+        self._handle_datagram(kind, data, addr)
+
+    def _handle_datagram(self, kind: LinkKind, data: bytes, addr: tuple[str, int]) -> None:
         link = self._links.get(kind)
         if link is None:
             return

@@ -55,6 +55,7 @@ class _OutputWorker:
         self.sent = 0
         self.dropped = 0
         self.errors = 0
+        self.writing = False  # a frame taken from the queue is being written
         self.write_ms: deque[float] = deque(maxlen=_TIMING_WINDOW)
         self.wire_ms: deque[float] = deque(maxlen=_TIMING_WINDOW)  # pose sample (meta.wall_time_s) -> written
         self.thread = threading.Thread(target=self._run, name=f"video-{output.name}", daemon=True)
@@ -78,10 +79,12 @@ class _OutputWorker:
                 if not self.queue:  # stopping and drained
                     return
                 frame = self.queue.popleft()
+                self.writing = True
             t0 = time.perf_counter()
             try:
                 self.output.write(frame)
             except Exception:
+                self.writing = False
                 self.errors += 1
                 if self.errors == 1 or self.errors % 100 == 0:
                     log.exception("video output %s: write failed (%d errors)", self.output.name, self.errors)
@@ -89,6 +92,7 @@ class _OutputWorker:
             self.write_ms.append((time.perf_counter() - t0) * 1e3)
             self.wire_ms.append((time.time() - frame.meta.wall_time_s) * 1e3)
             self.sent += 1
+            self.writing = False
 
     def stop(self, timeout_s: float) -> None:
         with self.cond:
@@ -278,6 +282,10 @@ class VideoPipeline:
         return self.publisher.bound_endpoint or self.publisher.endpoint
 
     # -- frames ------------------------------------------------------------------------------------------------
+    def idle(self) -> bool:
+        """True when every output has written (or dropped) every frame submitted so far (lockstep waits on it)."""
+        return all(not w.queue and not w.writing for w in self._workers)
+
     def submit(self, frame: RenderedFrame) -> bool:
         """Queue `frame` for every output without blocking. Takes ownership of frame.image_bgr (do not modify it).
 

@@ -1,0 +1,179 @@
+"""How simulated time relates to an external pilot's computing: realtime, lockstep or charged (`--timing`).
+
+- **realtime** (default): simulated time = speed x wall time (clock.RealTimePacer); the pilot's computing takes wall
+  time, so its score depends on the CPU it got. The run records what the pilot experienced (its CPU time and its
+  run-queue delay from /proc: time it wanted a CPU and had none) and flags a starved pilot.
+- **lockstep**: simulated time advances in quanta (QUANTUM_S of sim time); after each quantum (its telemetry, frames
+  and events sent), the loop waits until the pilot's processes are idle (pilotwatch: no thread runnable, no CPU used
+  over a settle interval) while the endpoint keeps receiving, so everything the pilot answered is applied at the
+  quantum's end, whatever the machine's load. While the pilot is idle the clock runs at `speed` x wall (a pilot that
+  sleeps on a wall-clock timer sees `speed` x its sleep pass; clients' wall-clock timers set the highest safe speed:
+  see README "Timing").
+- **charged**: lockstep, plus the pilot's computing is charged in simulated time: the CPU time its processes used
+  (from the OS, which load barely changes) times `pilot_cpu_factor` (2 = a companion computer 2x slower than this
+  CPU); what it sent while computing takes effect that much simulated time later (the endpoint holds it until then).
+
+A pilot that is never idle (busy polling) cannot be lockstepped: after NEVER_IDLE_GIVE_UP_S wall seconds of waiting
+the quantum runs anyway, counted in `never_idle`; the trial's timing record says so (`lockstep_held: false`).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from enum import StrEnum
+from typing import Any
+
+from viva_sitl.pilotwatch import IDLE_CPU_FRACTION, PilotTree, TreeSample
+
+QUANTUM_S = 0.02  # sim seconds between two waits for the pilot (its reaction time is at most one quantum)
+SETTLE_S = 0.001  # wall seconds between the two looks that find a pilot idle
+NEVER_IDLE_GIVE_UP_S = 2.0  # wall seconds one quantum waits for a pilot that stays busy
+STARVED_RUN_DELAY_SHARE = 0.10  # realtime: a pilot that waited for a CPU > 10 % of its wall time was starved
+WATCH_PERIOD_S = 0.25  # realtime: how often the pilot's CPU and run delay are read
+
+
+class Timing(StrEnum):
+    REALTIME = "realtime"
+    LOCKSTEP = "lockstep"
+    CHARGED = "charged"
+
+
+def parse_timing(value: str) -> Timing:
+    try:
+        return Timing(value)
+    except ValueError:
+        raise ValueError(
+            f"timing must be one of {', '.join(t.value for t in Timing)}, got {value!r}"
+        ) from None
+
+
+@dataclass
+class TimingStats:
+    """What the pilot experienced, for end.json's "timing" and the result row."""
+
+    mode: Timing
+    speed: float
+    pilot_cpu_factor: float | None
+    pilot_pid: int | None = None
+    quanta: int = 0  # lockstep quanta run
+    waited: int = 0  # quanta after which the pilot was still computing
+    busy_wall_s: float = 0.0  # wall seconds the clock stood still for the pilot
+    max_busy_wall_s: float = 0.0
+    charged_sim_s: float = 0.0  # simulated seconds charged for the pilot's computing (charged)
+    never_idle: int = 0  # quanta run without the pilot becoming idle (lockstep not held)
+    pilot_cpu_s: float = 0.0
+    pilot_run_delay_s: float = 0.0  # time the pilot's threads were runnable but had no CPU
+    pilot_wall_s: float = 0.0  # wall seconds the pilot was watched
+    note: str = ""
+    _cpu0: int | None = field(default=None, repr=False)
+    _delay0: int = field(default=0, repr=False)
+    _wall0: float = field(default=0.0, repr=False)
+
+    def observe(self, s: TreeSample) -> None:
+        if self._cpu0 is None:
+            self._cpu0, self._delay0, self._wall0 = s.cpu_ns, s.run_delay_ns, s.wall_s
+        self.pilot_cpu_s = (s.cpu_ns - self._cpu0) / 1e9
+        self.pilot_run_delay_s = (s.run_delay_ns - self._delay0) / 1e9
+        self.pilot_wall_s = s.wall_s - self._wall0
+
+    @property
+    def starved(self) -> bool:
+        return self.pilot_wall_s > 0 and self.pilot_run_delay_s > STARVED_RUN_DELAY_SHARE * self.pilot_wall_s
+
+    @property
+    def lockstep_held(self) -> bool | None:
+        if self.mode is Timing.REALTIME:
+            return None
+        return self.pilot_pid is not None and self.never_idle == 0
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "mode": self.mode.value, "speed": self.speed, "pilot_cpu_factor": self.pilot_cpu_factor,
+            "pilot_pid": self.pilot_pid, "quanta": self.quanta, "waited": self.waited,
+            "busy_wall_s": round(self.busy_wall_s, 3), "max_busy_wall_s": round(self.max_busy_wall_s, 3),
+            "charged_sim_s": round(self.charged_sim_s, 4), "never_idle": self.never_idle,
+            "pilot_cpu_s": round(self.pilot_cpu_s, 3), "pilot_run_delay_s": round(self.pilot_run_delay_s, 3),
+            "pilot_wall_s": round(self.pilot_wall_s, 3), "starved": self.starved,
+            "lockstep_held": self.lockstep_held, "note": self.note,
+        }  # fmt: skip
+
+
+class PilotGate:
+    """Waits until the pilot's process tree is idle (pilotwatch.PilotTree); returns the CPU it used meanwhile."""
+
+    def __init__(self, tree: PilotTree, stats: TimingStats) -> None:
+        self.tree = tree
+        self.stats = stats
+        self._last = tree.sample(time.monotonic())
+        stats.observe(self._last)
+
+    async def wait_idle(self, ready: Callable[[], bool] = lambda: True) -> float:
+        """Wait until the pilot is idle (and `ready()`: e.g. the video outputs wrote the quantum's frames);
+        return the pilot's CPU seconds since the previous call."""
+        t0 = time.monotonic()
+        cpu_before = self._last.cpu_ns
+        prev: TreeSample | None = None
+        while True:
+            await asyncio.sleep(SETTLE_S)  # the endpoint reads the pilot's messages meanwhile
+            now = time.monotonic()
+            if not ready() and now - t0 < NEVER_IDLE_GIVE_UP_S:
+                continue
+            cur = self.tree.sample(now)
+            if cur.processes == 0:  # the pilot is gone: nothing to wait for
+                break
+            if (
+                prev is not None
+                and prev.quiet
+                and cur.quiet
+                and cur.cpu_ns - prev.cpu_ns <= IDLE_CPU_FRACTION * (now - prev.wall_s) * 1e9
+            ):
+                break
+            if now - t0 >= NEVER_IDLE_GIVE_UP_S:
+                self.stats.never_idle += 1
+                prev = cur
+                break
+            prev = cur
+        end = time.monotonic()
+        last = prev if prev is not None and prev.wall_s >= end - 0.5 else self.tree.sample(end)
+        self._last = last
+        self.stats.observe(last)
+        waited = end - t0
+        if waited > 3 * SETTLE_S:
+            self.stats.waited += 1
+        self.stats.busy_wall_s += waited
+        self.stats.max_busy_wall_s = max(self.stats.max_busy_wall_s, waited)
+        return max(0.0, (last.cpu_ns - cpu_before) / 1e9)
+
+
+@dataclass
+class LockstepClock:
+    """Sim time may reach speed x (wall time not spent waiting for the pilot) + the charges."""
+
+    dt_s: float
+    speed: float
+    _wall0: float = field(default=math.nan, init=False)
+    _steps: int = field(default=0, init=False)
+    _frozen_wall_s: float = field(default=0.0, init=False)
+    _charged_s: float = field(default=0.0, init=False)
+
+    def start(self) -> None:
+        self._wall0 = time.monotonic()
+
+    def frozen(self, wall_s: float) -> None:
+        self._frozen_wall_s += wall_s
+
+    def charge(self, sim_s: float) -> None:
+        self._charged_s += sim_s
+
+    def mark_done(self, n: int) -> None:
+        self._steps += n
+
+    def wall_until_due_s(self) -> float:
+        """Wall seconds until the next step may run (0: now)."""
+        allowed = (time.monotonic() - self._wall0 - self._frozen_wall_s) * self.speed + self._charged_s
+        ahead = (self._steps + 1) * self.dt_s - allowed
+        return max(0.0, ahead / self.speed)
