@@ -31,6 +31,7 @@ from viva_sitl.dashboard.overview import LayerProvider
 from viva_sitl.dashboard.server import Dashboard
 from viva_sitl.dynamics import EavState, floats3
 from viva_sitl.dynamics.rotation import quat_from_euler
+from viva_sitl.evaluation.ends import TrialEnd
 from viva_sitl.evaluation.episode import scenario_config
 from viva_sitl.evaluation.monitor import Limits
 from viva_sitl.evaluation.session import ScenarioSession, read_scenario_file
@@ -46,7 +47,16 @@ from viva_sitl.perception.from_config import super_resolution_from_config
 from viva_sitl.pilotwatch import PilotTree, owner_of_udp_port, process_group, supported, zmq_io_threads
 from viva_sitl.recording import TRAJECTORY_FILE, Sample, TrajectoryRecorder, write_run_info
 from viva_sitl.sim import Simulator
-from viva_sitl.timing import QUANTUM_S, WATCH_PERIOD_S, LockstepClock, PilotGate, Timing, TimingStats
+from viva_sitl.timing import (
+    NEVER_IDLE_GIVE_UP_S,
+    NEVER_IDLE_QUANTA,
+    QUANTUM_S,
+    WATCH_PERIOD_S,
+    LockstepClock,
+    PilotGate,
+    Timing,
+    TimingStats,
+)
 from viva_sitl.vehicle import Vehicle
 from viva_sitl.video import FrameScheduler, VideoPipeline
 from viva_sitl.world import world_from_source
@@ -283,6 +293,7 @@ class SitlApp:
         frame_period = 1.0 / self.config.video.fps
         next_frame_t = self.sim.state.time_s
         tick = 0
+        busy_run = 0  # consecutive quanta after which the pilot was still busy
         gate: PilotGate | None = None
         while True:
             wait = clock.wall_until_due_s()
@@ -309,9 +320,25 @@ class SitlApp:
                 if charged:
                     self.endpoint.hold_incoming(True)
             t0 = time.monotonic()
+            never_idle = self.timing_stats.never_idle
             cpu_s = await gate.wait_idle(ready=video.idle if video is not None else lambda: True)
             clock.frozen(time.monotonic() - t0)
             self.timing_stats.quanta += 1
+            busy_run = busy_run + 1 if self.timing_stats.never_idle > never_idle else 0
+            if busy_run >= NEVER_IDLE_QUANTA:
+                why = (
+                    f"the pilot (pid {self.timing_stats.pilot_pid}) never became idle for {busy_run} quanta "
+                    f"({busy_run * NEVER_IDLE_GIVE_UP_S:g} s of wall time): {self.timing.value} timing needs a "
+                    "pilot that waits for input (a busy-polling loop never does); run it with --timing realtime"
+                )
+                log.error("%s", why)
+                self.timing_stats.note = why
+                if self.trial is not None:
+                    self.trial.abort(TrialEnd.PILOT_ERROR, why)
+                if charged:
+                    self.endpoint.hold_incoming(False)
+                await run_paced(self.pacer, self._step_once, self._after_batch)  # realtime from here on
+                return
             if charged:
                 charge = cpu_s * factor
                 self.endpoint.stamp_held(self.sim.state.time_s + charge)

@@ -14,7 +14,9 @@
   CPU); what it sent while computing takes effect that much simulated time later (the endpoint holds it until then).
 
 A pilot that is never idle (busy polling) cannot be lockstepped: after NEVER_IDLE_GIVE_UP_S wall seconds of waiting
-the quantum runs anyway, counted in `never_idle`; the trial's timing record says so (`lockstep_held: false`).
+the quantum runs anyway, counted in `never_idle` (the trial's timing record says `lockstep_held: false`); after
+NEVER_IDLE_QUANTA such quanta in a row a trial ends as pilot_error with that reason, and a plain run goes on in
+realtime.
 """
 
 from __future__ import annotations
@@ -32,6 +34,9 @@ from viva_sitl.pilotwatch import IDLE_CPU_FRACTION, PilotTree, TreeSample
 QUANTUM_S = 0.02  # sim seconds between two waits for the pilot (its reaction time is at most one quantum)
 SETTLE_S = 0.001  # wall seconds between the two looks that find a pilot idle
 NEVER_IDLE_GIVE_UP_S = 2.0  # wall seconds one quantum waits for a pilot that stays busy
+NEVER_IDLE_QUANTA = (
+    3  # that many such quanta in a row: the pilot cannot be lockstepped (a trial ends pilot_error)
+)
 STARVED_RUN_DELAY_SHARE = 0.10  # realtime: a pilot that waited for a CPU > 10 % of its wall time was starved
 WATCH_PERIOD_S = 0.25  # realtime: how often the pilot's CPU and run delay are read
 

@@ -66,7 +66,8 @@ from viva_sitl.evaluation.spec import Criterion, Scenario, TrialSpec
 from viva_sitl.world import ALL, PEOPLE, VEHICLES, WorldModel
 
 SCHEMA = "vivasitl.trials.v4"
-OLDER_SCHEMAS = ("vivasitl.trials.v1", "vivasitl.trials.v2", "vivasitl.trials.v3")  # readable: rows lack the columns added since
+# readable: rows lack the columns added since
+OLDER_SCHEMAS = ("vivasitl.trials.v1", "vivasitl.trials.v2", "vivasitl.trials.v3")
 COLUMNS = (
     "trial", "pilot", "seed", "footage", "start", "start_north_m", "start_east_m", "start_altitude_m",
     "start_yaw_deg", "footage_time_s", "land_at_s", "wind_speed_m_s", "failures", "end", "end_detail", "end_t_s",

@@ -92,6 +92,12 @@ class ScenarioSession:
         """The endpoint's event listener: every STATUSTEXT the vehicle sends goes into the trial's events."""
         self.episode.record_autopilot_event(int(severity), text)
 
+    def abort(self, end: TrialEnd, reason: str) -> None:
+        """End the trial now from the app (e.g. a pilot lockstep cannot wait for): logs written at once."""
+        if not self.episode.done:
+            self.episode.end(end, reason)
+            self._write()
+
     def finish(self, reason: str = "viva-sitl run stopped before the trial ended") -> None:
         """At the app's exit: the logs of a trial cut short (Ctrl-C, --duration) are written too."""
         if not self.finished:

@@ -148,7 +148,8 @@ class MavlinkEndpoint:
         self._links: dict[LinkKind, _Link] = {}
         self._tasks: list[asyncio.Task[None]] = []
         self._listeners: list[EventListener] = []
-        self._holding = False  # charged timing: received datagrams wait in _held (due sim time, link, data, peer)
+        # charged timing: received datagrams wait in _held (due sim time, link, data, peer)
+        self._holding = False
         self._held: deque[tuple[float | None, LinkKind, bytes, tuple[str, int]]] = deque()
         self._statustext_id = 0
         self._last_setpoint_warn = -math.inf

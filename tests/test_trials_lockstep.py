@@ -1,0 +1,171 @@
+"""Lockstep and charged timing (viva_sitl.timing) with real external pilots: real `viva-sitl run` processes, real
+pymavlink programs as pilots, real busy processes loading the machine (started and stopped by pid)."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+import pytest
+
+from viva_sitl.evaluation.campaign import MEASURED_COLUMNS, rows_equal, run_campaign
+from viva_sitl.evaluation.spec import spec_from_dict
+from viva_sitl.pilotwatch import supported
+
+pytestmark = [
+    pytest.mark.e2e,
+    pytest.mark.skipif(bool(supported()), reason=supported() or "Linux /proc with schedstat"),
+]
+
+# Told to land, it flies offboard velocity setpoints toward a spot 6 m north-east of where it was, descending, one
+# setpoint per LOCAL_POSITION_NED it receives; each one costs it argv[2] ms of CPU time (seeded per message),
+# then below 2 m it commands LAND. Its wall-clock heartbeat timer does not steer.
+BUSY_PILOT = r"""
+import json, os, random, sys, time
+os.environ["MAVLINK20"] = "1"
+from pymavlink import mavutil
+scenario = json.load(open(os.environ["VIVA_SITL_SCENARIO"]))
+lo, hi = (float(x) for x in sys.argv[2].split(","))
+rng = random.Random(scenario["index"])
+m = mavutil.mavlink_connection(sys.argv[1], source_system=255)
+m.wait_heartbeat(timeout=30)
+m.mav.command_long_send(m.target_system, 1, mavutil.mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, 0, 32, 50000, 0, 0, 0, 0, 0)
+OFFBOARD = 6 << 16
+mask = 0b0000_1111_1100_0111  # velocities only
+state, target, last_hb = "wait", None, 0.0
+while True:
+    if time.monotonic() - last_hb > 1.0:
+        m.mav.heartbeat_send(mavutil.mavlink.MAV_TYPE_GCS, mavutil.mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0)
+        last_hb = time.monotonic()
+    msg = m.recv_match(type=["STATUSTEXT", "HEARTBEAT", "LOCAL_POSITION_NED"], blocking=True, timeout=0.5)
+    if msg is None:
+        continue
+    t = msg.get_type()
+    if t == "STATUSTEXT" and "land now" in msg.text and state == "wait":
+        state = "offboard"
+    elif t == "LOCAL_POSITION_NED" and state in ("offboard", "flying"):
+        if target is None:
+            target = (msg.x + 6.0, msg.y + 6.0)
+        end = time.thread_time() + rng.uniform(lo, hi) / 1000.0  # a fixed amount of work, however loaded
+        while time.thread_time() < end:
+            pass
+        vn = max(-3.0, min(3.0, 0.8 * (target[0] - msg.x)))
+        ve = max(-3.0, min(3.0, 0.8 * (target[1] - msg.y)))
+        m.mav.set_position_target_local_ned_send(0, m.target_system, 1, mavutil.mavlink.MAV_FRAME_LOCAL_NED, mask,
+                                                 0, 0, 0, vn, ve, 1.5, 0, 0, 0, 0, 0)
+        if state == "offboard":
+            m.mav.command_long_send(m.target_system, 1, mavutil.mavlink.MAV_CMD_DO_SET_MODE, 0,
+                                    mavutil.mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, 6, 0, 0, 0, 0, 0)
+            state = "flying"
+        elif -msg.z < 2.0:
+            m.mav.command_long_send(m.target_system, 1, mavutil.mavlink.MAV_CMD_NAV_LAND, 0, 0, 0, 0, 0, 0, 0, 0)
+            state = "landing"
+    elif t == "HEARTBEAT" and msg.get_srcSystem() == m.target_system and state == "landing":
+        if not msg.base_mode & mavutil.mavlink.MAV_MODE_FLAG_SAFETY_ARMED:
+            print("disarmed: done", flush=True)
+            break
+"""
+
+SPINNER_PILOT = r"""
+import os, sys
+os.environ["MAVLINK20"] = "1"
+from pymavlink import mavutil
+m = mavutil.mavlink_connection(sys.argv[1], source_system=255)
+m.wait_heartbeat(timeout=30)
+m.mav.heartbeat_send(mavutil.mavlink.MAV_TYPE_GCS, mavutil.mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0)
+while True:  # busy polling: never waits for anything
+    m.recv_match(blocking=False)
+"""
+
+
+def _spec(timing: str, n: int = 2, factor: float = 1.0, speed: float = 2.0) -> object:
+    return spec_from_dict(
+        {"trials": {"name": "lockstep", "n": n, "seed": 3, "timeout_s": 60.0, "speed": speed, "timing": timing,
+                    "pilot_cpu_factor": factor},
+         "scenario": {"footage": "synthetic", "start": "air", "north_m": [-20.0, 20.0], "east_m": [-20.0, 20.0],
+                      "altitude_m": [8.0, 10.0], "land_at_s": [1.0, 2.0]}},
+        "lockstep",
+    )  # fmt: skip
+
+
+@contextmanager
+def _busy_loops(n: int) -> Iterator[list[int]]:
+    """n processes that each keep a CPU busy (the machine's load), stopped by pid."""
+    procs = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(n)]
+    try:
+        yield [p.pid for p in procs]
+    finally:
+        for p in procs:
+            p.kill()
+            p.wait(5)
+
+
+def _strip(rows: list[dict[str, object]]) -> list[dict[str, object]]:
+    return [{k: v for k, v in r.items() if k not in MEASURED_COLUMNS} for r in rows]
+
+
+@pytest.mark.slow  # four campaigns of two external trials
+def test_lockstep_rows_do_not_depend_on_load_jobs_or_compute_time(tmp_path: Path) -> None:
+    script = tmp_path / "busy_pilot.py"
+    script.write_text(BUSY_PILOT)
+    spec = _spec("lockstep")
+    runs = []
+    for k, (jobs, busy, ms) in enumerate([(1, 0, "5,15"), (2, 2, "5,15"), (1, 0, "30,60")]):
+        with _busy_loops(busy):
+            camp = run_campaign(spec, f"{{python}} {script} {{pymavlink_url}} {ms}", tmp_path / f"o{k}",
+                                jobs=jobs, progress=False)  # fmt: skip
+        rows = camp.ordered_rows()
+        assert [r["end"] for r in rows] == ["landed", "landed"], [(r["end"], r["end_detail"]) for r in rows]
+        assert all(r["timing"] == "lockstep" and r["timing_ok"] is True for r in rows), rows
+        runs.append(rows)
+    # quiet at jobs 1 and loaded (2 busy loops) at jobs 2: the same trials, to the last digit
+    assert rows_equal(runs[0], runs[1]), (_strip(runs[0]), _strip(runs[1]))
+    # 3-6x the computing per message (the pilot command's argument): the clock stood still for it, so the pilot
+    # flew the same
+    same_pilot = [{**r, "pilot": runs[0][0]["pilot"]} for r in runs[2]]
+    assert rows_equal(runs[0], same_pilot), (_strip(runs[0]), _strip(same_pilot))
+    timing = json.loads((tmp_path / "o2" / "trials" / "0000" / "end.json").read_text())["timing"]
+    assert timing["mode"] == "lockstep" and timing["waited"] > 50 and timing["lockstep_held"] is True
+    assert timing["pilot_cpu_s"] > 1.0  # ~45 ms per setpoint, ~20 setpoints per sim second
+    run = json.loads((tmp_path / "o0" / "results.json").read_text())["run"]
+    assert run["timing"] == "lockstep" and run["pilot_cpu_factor"] is None
+
+
+@pytest.mark.slow
+def test_charged_timing_bills_the_pilots_computing(tmp_path: Path) -> None:
+    script = tmp_path / "busy_pilot.py"
+    script.write_text(BUSY_PILOT)
+    out = {}
+    for factor in (0.0, 4.0):
+        camp = run_campaign(_spec("charged", n=1, factor=factor), f"{{python}} {script} {{pymavlink_url}} 20,30",
+                            tmp_path / f"f{factor:g}", progress=False)  # fmt: skip
+        (row,) = camp.ordered_rows()
+        assert row["end"] == "landed" and row["timing"] == "charged" and row["pilot_cpu_factor"] == factor, (
+            row
+        )
+        out[factor] = row
+    ends = {f: json.loads((tmp_path / f"f{f:g}" / "trials" / "0000" / "end.json").read_text()) for f in out}
+    rec = ends[4.0]["timing"]
+    assert rec["charged_sim_s"] > 1.0 and rec["lockstep_held"] is True
+    assert ends[0.0]["timing"]["charged_sim_s"] == 0.0
+    # factor 0 is lockstep: the pilot's first setpoint acts within a quantum of "land now"; at factor 4 each one
+    # takes effect 4 x its 20-30 ms of computing later (plus its share of the pilot's other CPU)
+    delay = {f: e["reaction_t_s"] - e["land_now_t_s"] for f, e in ends.items()}
+    assert delay[0.0] <= 0.1 and delay[4.0] >= delay[0.0] + 0.08, delay
+    run = json.loads((tmp_path / "f4" / "results.json").read_text())["run"]
+    assert run["timing"] == "charged" and run["pilot_cpu_factor"] == 4.0
+
+
+@pytest.mark.slow
+def test_a_pilot_that_never_waits_ends_its_lockstep_trial_with_the_reason(tmp_path: Path) -> None:
+    script = tmp_path / "spinner.py"
+    script.write_text(SPINNER_PILOT)
+    camp = run_campaign(_spec("lockstep", n=1), f"{{python}} {script} {{pymavlink_url}}", tmp_path / "o",
+                        progress=False)  # fmt: skip
+    (row,) = camp.ordered_rows()
+    assert row["end"] == "pilot_error" and "never became idle" in row["end_detail"], row
+    assert row["timing_ok"] is False
