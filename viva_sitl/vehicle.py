@@ -72,7 +72,7 @@ class Vehicle:
             self.inside = None
         else:
             self.inside = geofence
-        self.autopilot = Autopilot(self.params, self.config.physics, inside=self.inside)
+        self.autopilot = self._new_autopilot()
         self.sim.super_resolution = super_resolution
         self.autopilot.start(self.time_s, self.state)  # home and pre-arm checks valid before the first step
         self.steps = 0  # physics steps since construction (all resets included)
@@ -108,10 +108,17 @@ class Vehicle:
         (disarmed on the ground, or armed in Hold for an air start) on the same parameters, as after a reboot. The
         autopilot has seen the initial state: arming is possible before the first step."""
         state = self.sim.reset(seed, pos_ned_m, yaw_rad, vel_ned_m_s)
-        self.autopilot = Autopilot(self.params, self.config.physics, inside=self.inside)
+        self.autopilot = self._new_autopilot()
         self.autopilot.start(state.time_s, state)
         self._sync_params()
         return state
+
+    def _new_autopilot(self) -> Autopilot:
+        """An Autopilot on these parameters; with a `gimbal` camera mount it gets a gimbal whose rest is the mount's
+        configured angles (MAVLink convention: pitch -90 = the nadir mount)."""
+        cam = self._mount_camera
+        neutral = (cam.mount_pitch_deg - 90.0, cam.mount_yaw_deg) if cam.mount is Mount.GIMBAL else None
+        return Autopilot(self.params, self.config.physics, inside=self.inside, gimbal_neutral_deg=neutral)
 
     def _sync_params(self) -> None:
         new = self.autopilot.eav_params()  # cached on the parameter revision: an identity test per step

@@ -55,6 +55,7 @@ from viva_sitl.autopilot.context import FlightContext, InsideFn
 from viva_sitl.autopilot.failsafe import battery_level, battery_warning
 from viva_sitl.autopilot.failures import Failures, FailureType, FailureUnit
 from viva_sitl.autopilot.geofence import Geofence, RallyPoint
+from viva_sitl.autopilot.gimbal import GimbalControl, GimbalMode
 from viva_sitl.autopilot.land_detector import LandDetector, Transition
 from viva_sitl.autopilot.orbit import Orbit
 from viva_sitl.autopilot.params import ParamStore
@@ -75,7 +76,13 @@ from viva_sitl.dynamics import EavCommand, EavParams, EavState
 
 
 class Autopilot:
-    def __init__(self, params: ParamStore, eav: EavParams, inside: InsideFn | None = None) -> None:
+    def __init__(
+        self,
+        params: ParamStore,
+        eav: EavParams,
+        inside: InsideFn | None = None,
+        gimbal_neutral_deg: tuple[float, float] | None = None,
+    ) -> None:
         self.params = params
         self.eav = eav  # the airframe as configured; eav_params() applies the SIM_* parameters on top
         self.inside = inside
@@ -87,6 +94,11 @@ class Autopilot:
         self.land_detector = LandDetector(params)
         self.commander = Commander(self.ctx, self.tasks, self.land_detector)
         self._bat_level = 0  # 0 ok, 1 low, 2 critical (events once per crossing)
+        # a gimbal camera mount (the Vehicle passes its configured (pitch, yaw)): None = the camera is fixed
+        self.gimbal: GimbalControl | None = (
+            GimbalControl(gimbal_neutral_deg) if gimbal_neutral_deg is not None else None
+        )
+        self._gimbal_mission_seen: tuple[float, float] | None = None
 
     def eav_params(self) -> EavParams:
         """The EAV parameters with SIM_* applied: the caller swaps it into the physics when it changes
@@ -234,10 +246,22 @@ class Autopilot:
 
     @property
     def gimbal_pitch_yaw_deg(self) -> tuple[float, float] | None:
-        """Last gimbal (pitch, yaw) in degrees a mission item asked for (DO_MOUNT_CONTROL /
-        DO_GIMBAL_MANAGER_PITCHYAW; pitch 0 level, -90 down; yaw relative to the nose), None before any.
-        Vehicle.render applies it to a `gimbal` camera mount."""
-        return self.tasks.mission.gimbal_deg
+        """The gimbal's (pitch, yaw) in degrees now (pitch 0 level, -90 down; yaw relative to the nose), None while
+        it rests at its configured mount. Without a fitted gimbal: the last mission gimbal item's (DO_MOUNT_CONTROL /
+        DO_GIMBAL_MANAGER_PITCHYAW), None before any. With one (`gimbal`, see autopilot/gimbal.py) the latest of
+        the mission's items and the gimbal manager's commands wins. Vehicle.render applies it to a `gimbal` mount."""
+        mission_deg = self.tasks.mission.gimbal_deg
+        g = self.gimbal
+        if g is None:
+            return mission_deg
+        if mission_deg is not self._gimbal_mission_seen:  # a new mission gimbal item since the last read
+            self._gimbal_mission_seen = mission_deg
+            if mission_deg is not None:
+                g.set_angles(self.ctx.now_s, self.ctx.yaw, mission_deg[0], mission_deg[1])
+        if g.mode == GimbalMode.NEUTRAL:
+            return None
+        pos = self.ctx.pos
+        return g.current(self.ctx.now_s, (float(pos[0]), float(pos[1]), float(pos[2])), self.ctx.yaw)
 
     def pop_payload_actions(self) -> list[PayloadAction]:
         """Camera actions asked for by mission items / the distance trigger since the last call."""
