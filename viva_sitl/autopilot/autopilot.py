@@ -59,9 +59,12 @@ from viva_sitl.autopilot.gimbal import GimbalControl, GimbalMode
 from viva_sitl.autopilot.land_detector import LandDetector, Transition
 from viva_sitl.autopilot.orbit import Orbit
 from viva_sitl.autopilot.params import ParamStore
+from viva_sitl.autopilot.setpoints import MAX_ABS_POS_M
 from viva_sitl.autopilot.tasks import FlightTasks, OffboardKind, RtlPhase
+from viva_sitl.autopilot.tasks.follow import FollowTarget, TrackLookup
 from viva_sitl.autopilot.types import (
     AttitudeTarget,
+    CommandResult,
     Event,
     FlightMode,
     LandedState,
@@ -276,6 +279,33 @@ class Autopilot:
 
     def set_manual_input(self, now_s: float, manual: ManualInput) -> Outcome:
         return self.tasks.manual.set_input(now_s, manual)
+
+    def set_follow_target(
+        self,
+        now_s: float,
+        pos_ned_m: tuple[float, float, float],
+        vel_ned_m_s: tuple[float, float, float] = (0.0, 0.0, 0.0),
+    ) -> Outcome:
+        """A Follow Me target observation (FOLLOW_TARGET), used in AUTO_FOLLOW_TARGET. North/east must be finite
+        and in range; a NaN down is a 2D target; NaN velocity components count as 0."""
+        n, e, d = (float(v) for v in pos_ned_m)
+        if not (math.isfinite(n) and math.isfinite(e)) or max(abs(n), abs(e)) > MAX_ABS_POS_M:
+            return Outcome(CommandResult.DENIED, "Follow target: position not finite or out of range")
+        if math.isfinite(d) and abs(d) > MAX_ABS_POS_M:
+            d = math.nan
+        vel = tuple(float(v) if math.isfinite(v) and abs(v) < 1000.0 else 0.0 for v in vel_ned_m_s)
+        self.tasks.follow.set_target(FollowTarget(n, e, d, (vel[0], vel[1], vel[2]), now_s))
+        return Outcome(CommandResult.ACCEPTED)
+
+    @property
+    def follow_track_lookup(self) -> TrackLookup | None:
+        """(track index, sim time) -> (north, east, v_north, v_east) of a footage ground-truth track, or None: what
+        FLW_TGT_TRACK >= 0 follows. The Vehicle sets it (the autopilot does no I/O)."""
+        return self.tasks.follow.track_lookup
+
+    @follow_track_lookup.setter
+    def follow_track_lookup(self, lookup: TrackLookup | None) -> None:
+        self.tasks.follow.track_lookup = lookup
 
     def gcs_heartbeat(self, now_s: float) -> None:  # for NAV_DLL_ACT link-loss
         if self.failures.is_active(FailureUnit.SYSTEM_MAVLINK_SIGNAL):

@@ -46,6 +46,7 @@ from viva_sitl.mavlink.camera import CameraComponent, is_camera_command
 from viva_sitl.mavlink.codec import DatagramParser, Encoder
 from viva_sitl.mavlink.commands import CommandHandler, CommandRequest
 from viva_sitl.mavlink.config import EndpointStartError, EndpointStats, MavlinkConfig, PortInUseError
+from viva_sitl.mavlink.follow_target import FollowTargetInput
 from viva_sitl.mavlink.ftp import FtpServer
 from viva_sitl.mavlink.gimbal import GimbalManager
 from viva_sitl.mavlink.logs import LogProtocol
@@ -238,6 +239,9 @@ class MavlinkEndpoint:
             M.MAVLINK_MSG_ID_TIMESYNC: self._on_timesync,
             M.MAVLINK_MSG_ID_SETUP_SIGNING: self._on_setup_signing,
         }
+        # Follow Me's target input (follow_target.py)
+        self.follow_target = FollowTargetInput(vehicle, self._statustext)
+        self._handlers[M.MAVLINK_MSG_ID_FOLLOW_TARGET] = lambda _lk, o, m: self.follow_target.handle(o, m)
         # the gimbal manager (gimbal.py): only for a `gimbal` camera mount (the autopilot then has a gimbal)
         self.gimbal: GimbalManager | None = None
         if getattr(vehicle.autopilot, "gimbal", None) is not None:
