@@ -3,7 +3,7 @@
 MAVSDK's follow_me plugin sends it once a second while the vehicle is in Follow Me (lat/lon 1e7 degrees, alt AMSL in
 metres, vel NED in m/s, est_capabilities bit 0 = position). The message has no target fields: any peer's counts, as
 PX4. A position of (0, 0), out of range, or without the position bit is ignored, with one STATUSTEXT at most every
-5 s (never a traceback); a NaN altitude is a 2D target (FLW_TGT_ALT_M 0 and 1 do not need it), NaN velocity
+5 s, short enough for one STATUSTEXT (never a traceback); a NaN altitude is a 2D target (FLW_TGT_ALT_M 0 and 1 do not need it), NaN velocity
 components count as unknown (0).
 """
 
@@ -38,15 +38,15 @@ class FollowTargetInput:
         if not math.isfinite(now) or now - self._last_warn_s >= WARN_INTERVAL_S:
             self._last_warn_s = now if math.isfinite(now) else self._last_warn_s
             self.statustext(origin, Severity.WARNING, f"Follow target ignored: {why}")
-        log.debug("FOLLOW_TARGET ignored: %s", why)
+        log.info("FOLLOW_TARGET from %d/%d ignored: %s", origin.sysid, origin.compid, why)
 
     def handle(self, origin: Origin, msg: MavMessage) -> None:
         if not int(msg.est_capabilities) & EST_POS:
-            self._ignore(origin, "no position (est_capabilities bit 0)")
+            self._ignore(origin, "no position bit")
             return
         lat, lon = int(msg.lat) * 1e-7, int(msg.lon) * 1e-7
         if (int(msg.lat), int(msg.lon)) == (0, 0) or not (-90.0 <= lat <= 90.0 and -180.0 <= lon <= 180.0):
-            self._ignore(origin, f"position {lat:.7f}, {lon:.7f} invalid")
+            self._ignore(origin, "lat/lon invalid")
             return
         geo = self.vehicle.geo
         alt = float(msg.alt)
@@ -60,7 +60,7 @@ class FollowTargetInput:
         if outcome.ok:
             self.accepted += 1
         else:
-            self._ignore(origin, outcome.reason or "refused")
+            self._ignore(origin, "position out of range")
 
 
 __all__ = ["FollowTargetInput"]
