@@ -108,3 +108,28 @@ def test_follows_a_footage_ground_truth_track(flying: Vehicle) -> None:
     ap.pop_events()
     v.step(STEPS_PER_S)
     assert any("track 99999 absent now" in e.text for e in ap.pop_events())
+
+
+def test_gimbal_looks_at_the_target_while_following() -> None:
+    """With a gimbal mount, Follow Me points the camera at the target (PX4's follow task drives the gimbal)."""
+    import dataclasses
+
+    from viva_sitl.camera import Mount
+    from viva_sitl.config import SimConfig
+
+    base = SimConfig()
+    v = Vehicle(
+        dataclasses.replace(base, camera=dataclasses.replace(base.camera, mount=Mount.GIMBAL)), geofence=False
+    )
+    ap = v.autopilot
+    assert ap.arm(v.time_s).ok and ap.takeoff(v.time_s, 10.0).ok
+    v.step(STEPS_PER_S * 8)
+    assert ap.gimbal_pitch_yaw_deg is None  # at rest: the nadir mount
+    assert ap.set_mode(v.time_s, FlightMode.AUTO_FOLLOW_TARGET).ok
+    walk(v, (20.0, 0.0), (0.0, 2.0), 25)
+    angles = ap.gimbal_pitch_yaw_deg
+    assert angles is not None
+    # 8 m behind, 8 m up: 45 deg down, straight ahead (the vehicle faces the target)
+    assert angles[0] == pytest.approx(-45.0, abs=3.0) and angles[1] == pytest.approx(0.0, abs=3.0)
+    assert ap.set_mode(v.time_s, FlightMode.AUTO_LOITER).ok
+    assert ap.gimbal_pitch_yaw_deg is None  # back to the mount after the mode

@@ -55,7 +55,7 @@ from viva_sitl.autopilot.context import FlightContext, InsideFn
 from viva_sitl.autopilot.failsafe import battery_level, battery_warning
 from viva_sitl.autopilot.failures import Failures, FailureType, FailureUnit
 from viva_sitl.autopilot.geofence import Geofence, RallyPoint
-from viva_sitl.autopilot.gimbal import GimbalControl, GimbalMode
+from viva_sitl.autopilot.gimbal import GimbalControl, GimbalMode, point_at
 from viva_sitl.autopilot.land_detector import LandDetector, Transition
 from viva_sitl.autopilot.orbit import Orbit
 from viva_sitl.autopilot.params import ParamStore
@@ -261,10 +261,14 @@ class Autopilot:
             self._gimbal_mission_seen = mission_deg
             if mission_deg is not None:
                 g.set_angles(self.ctx.now_s, self.ctx.yaw, mission_deg[0], mission_deg[1])
+        pos = self.ctx.pos
+        here = (float(pos[0]), float(pos[1]), float(pos[2]))
+        target = self.tasks.follow.following
+        if self.ctx.mode == FlightMode.AUTO_FOLLOW_TARGET and target is not None:
+            return point_at(target, here, self.ctx.yaw)  # PX4's follow task points the gimbal at the target
         if g.mode == GimbalMode.NEUTRAL:
             return None
-        pos = self.ctx.pos
-        return g.current(self.ctx.now_s, (float(pos[0]), float(pos[1]), float(pos[2])), self.ctx.yaw)
+        return g.current(self.ctx.now_s, here, self.ctx.yaw)
 
     def pop_payload_actions(self) -> list[PayloadAction]:
         """Camera actions asked for by mission items / the distance trigger since the last call."""

@@ -10,6 +10,8 @@ gimbal manager (viva_sitl.mavlink.gimbal), mission gimbal items and Follow Me as
   (deg/s) move the angles on from when they were set, as PX4 integrates angular-velocity inputs.
 - ROI: a NED point; pitch = atan2(height difference, ground distance) and yaw = the bearing, at every read (PX4's
   OutputBase position update).
+- Follow Me (AUTO.FOLLOW_TARGET with a target): the autopilot points the gimbal at the target on the ground instead,
+  as PX4's follow task does (Autopilot.gimbal_pitch_yaw_deg); the setpoint above applies again after the mode.
 
 Limits: pitch is clamped to [PITCH_MIN_DEG, PITCH_MAX_DEG] (PX4 saturates its output the same way; the manager
 advertises these limits in GIMBAL_MANAGER_INFORMATION); yaw is wrapped to [-180, 180).
@@ -40,6 +42,19 @@ def wrap_deg(a: float) -> float:
 
 def clamp_pitch(p: float) -> float:
     return min(max(p, PITCH_MIN_DEG), PITCH_MAX_DEG)
+
+
+def point_at(
+    target_ned_m: tuple[float, float, float], pos_ned_m: tuple[float, float, float], vehicle_yaw_rad: float
+) -> tuple[float, float]:
+    """(pitch, yaw from the nose) in degrees that look from pos at target (pitch clamped, yaw wrapped)."""
+    dn = target_ned_m[0] - pos_ned_m[0]
+    de = target_ned_m[1] - pos_ned_m[1]
+    ground = math.hypot(dn, de)
+    # NED down: a target below the vehicle (larger down) gives a negative pitch (looking down)
+    pitch = math.degrees(math.atan2(pos_ned_m[2] - target_ned_m[2], ground))
+    bearing = math.degrees(math.atan2(de, dn)) if ground > 1e-6 else math.degrees(vehicle_yaw_rad)
+    return clamp_pitch(pitch), wrap_deg(bearing - math.degrees(vehicle_yaw_rad))
 
 
 @dataclass
@@ -92,13 +107,7 @@ class GimbalControl:
     ) -> tuple[float, float]:
         """(pitch above the horizon, yaw from the nose) in degrees, now."""
         if self.mode == GimbalMode.ROI and self.roi_ned_m is not None and pos_ned_m is not None:
-            dn = self.roi_ned_m[0] - pos_ned_m[0]
-            de = self.roi_ned_m[1] - pos_ned_m[1]
-            ground = math.hypot(dn, de)
-            # NED down: a target below the vehicle (larger down) gives a negative pitch (looking down)
-            pitch = math.degrees(math.atan2(pos_ned_m[2] - self.roi_ned_m[2], ground))
-            bearing = math.degrees(math.atan2(de, dn)) if ground > 1e-6 else math.degrees(vehicle_yaw_rad)
-            return clamp_pitch(pitch), wrap_deg(bearing - math.degrees(vehicle_yaw_rad))
+            return point_at(self.roi_ned_m, pos_ned_m, vehicle_yaw_rad)
         if self.mode == GimbalMode.ANGLE:
             dt = max(0.0, now_s - self.set_at_s) if math.isfinite(now_s) else 0.0
             pitch = clamp_pitch(self.pitch_deg + self.pitch_rate_deg_s * dt)
@@ -117,5 +126,6 @@ __all__ = [
     "GimbalControl",
     "GimbalMode",
     "clamp_pitch",
+    "point_at",
     "wrap_deg",
 ]

@@ -147,8 +147,8 @@ class GimbalManager:
         g = self.control
         if g is None:
             return (-90.0, 0.0)
-        pos = self.vehicle.state.pos_ned_m
-        return g.current(self._now(), (float(pos[0]), float(pos[1]), float(pos[2])), self._yaw())
+        now = self.vehicle.autopilot.gimbal_pitch_yaw_deg  # what the VAC renders (mission items, Follow Me too)
+        return now if now is not None else g.current(self._now(), None, self._yaw())
 
     # --- messages -----------------------------------------------------------------------------
     def manager_information(self) -> MavMessage:

@@ -64,6 +64,7 @@ class FollowTargetTask:
         self._hold: tuple[float, float, float] | None = None
         self._lost_warned = False
         self._track_warned = -2
+        self.following: tuple[float, float, float] | None = None  # the (filtered) target on the ground, NED
 
     def set_target(self, target: FollowTarget) -> None:
         self.target = target
@@ -73,6 +74,7 @@ class FollowTargetTask:
     def activate(self, now_s: float) -> None:
         ctx = self.ctx
         self._filtered = None
+        self.following = None
         # PX4: before the target's course is known, stand on the side the vehicle faces from
         self._course = (math.cos(ctx.yaw), math.sin(ctx.yaw))
         pos = ctx.pos
@@ -109,6 +111,7 @@ class FollowTargetTask:
         lim = limits(ctx, xy=p.get("MPC_XY_VEL_MAX"), auto=True)
         obs = self._observation(now_s)
         pos = state.pos_ned_m
+        self.following = None
         if obs is None:
             if self._hold is None:
                 self._hold = (float(pos[0]), float(pos[1]), float(pos[2]))
@@ -125,6 +128,8 @@ class FollowTargetTask:
             fn, fe = self._filtered
             self._filtered = (fn + k * (obs.north_m + vn * tau - fn), fe + k * (obs.east_m + ve * tau - fe))
         tn, te = self._filtered
+        ground = float(ctx.home[2]) if not math.isfinite(obs.down_m) else obs.down_m
+        self.following = (tn, te, ground)
         speed = math.hypot(vn, ve)
         if speed > MIN_SPEED_FOR_COURSE_M_S:
             self._course = (vn / speed, ve / speed)
