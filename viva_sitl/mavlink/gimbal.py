@@ -147,7 +147,8 @@ class GimbalManager:
         g = self.control
         if g is None:
             return (-90.0, 0.0)
-        now = self.vehicle.autopilot.gimbal_pitch_yaw_deg  # what the VAC renders (mission items, Follow Me too)
+        # what the VAC renders (mission items and Follow Me included)
+        now = self.vehicle.autopilot.gimbal_pitch_yaw_deg
         return now if now is not None else g.current(self._now(), None, self._yaw())
 
     # --- messages -----------------------------------------------------------------------------
