@@ -12,6 +12,7 @@ import pytest
 from mav_client import MavClient, VehicleThread
 from sitl_process import MavlinkPeer, SitlProcess, e2e_speed, free_udp_ports
 
+from viva_sitl.config import SimConfig
 from viva_sitl.mavlink import MavlinkConfig
 from viva_sitl.mavlink.camera_link import CameraLink
 
@@ -106,19 +107,25 @@ def client() -> Iterator[MavClient]:
 
 @pytest.fixture
 def vehicle_factory(client: MavClient) -> Iterator[Callable[..., VehicleThread]]:
-    """start(speed=1.0, camera=None, footage=None, **MavlinkConfig fields) -> a started VehicleThread whose API link
+    """start(speed=1.0, camera=None, footage=None, sim_config=None, **MavlinkConfig fields) -> a started VehicleThread whose API link
     talks to `client` (client.target set to it); no GCS remote, local ports free. Every one is stopped at teardown.
 
     A test module's `vehicle` fixture is one call: `return vehicle_factory(speed=4.0)`."""
     started: list[VehicleThread] = []
 
     def start(
-        speed: float = 1.0, camera: CameraLink | None = None, footage: str | Path | None = None, **config: Any
+        speed: float = 1.0,
+        camera: CameraLink | None = None,
+        footage: str | Path | None = None,
+        sim_config: SimConfig | None = None,
+        **config: Any,
     ) -> VehicleThread:
         fields: dict[str, Any] = {"api_remote_port": client.port, "gcs_remote_port": 0, "api_local_port": 0,
                                   "gcs_local_port": 0}  # fmt: skip
         fields.update(config)
-        vt = VehicleThread(MavlinkConfig(**fields), speed=speed, camera=camera, footage=footage)
+        vt = VehicleThread(
+            MavlinkConfig(**fields), speed=speed, camera=camera, footage=footage, sim_config=sim_config
+        )
         started.append(vt)
         vt.start()
         client.target = vt.api

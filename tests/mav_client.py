@@ -18,6 +18,7 @@ from typing import Any
 
 from pymavlink.dialects.v20 import common as mavlink2
 
+from viva_sitl.config import SimConfig
 from viva_sitl.mavlink.base import MavMessage
 from viva_sitl.mavlink.camera_link import CameraLink
 from viva_sitl.mavlink.config import MavlinkConfig
@@ -32,8 +33,9 @@ class VehicleThread:
     """
 
     def __init__(self, config: MavlinkConfig, speed: float = 1.0, camera: CameraLink | None = None,
-                 footage: str | Path | None = None) -> None:  # fmt: skip
+                 footage: str | Path | None = None, sim_config: SimConfig | None = None) -> None:  # fmt: skip
         self.config = config
+        self.sim_config = sim_config  # None: SimConfig(seed=0), as SelftestVehicle
         self.footage = footage  # None: no footage edge (SelftestVehicle)
         self.speed = speed
         self.camera = camera
@@ -55,7 +57,9 @@ class VehicleThread:
     async def _main(self) -> None:
         self._loop = asyncio.get_running_loop()
         self._stop = asyncio.Event()
-        self.vehicle = SelftestVehicle(speed=self.speed, camera=self.camera, footage=self.footage)
+        self.vehicle = SelftestVehicle(
+            self.sim_config, speed=self.speed, camera=self.camera, footage=self.footage
+        )
         self.endpoint = MavlinkEndpoint(self.vehicle, self.config)
         self.vehicle.step_hooks.append(self.endpoint.on_sim_step)
         self.vehicle.start()

@@ -133,6 +133,7 @@ NAV_STATE = {
     FlightMode.AUTO_TAKEOFF: 17,
     FlightMode.AUTO_LAND: 18,
     FlightMode.ORBIT: 21,
+    FlightMode.AUTO_FOLLOW_TARGET: 19,
     FlightMode.AUTO_READY: 4,
 }
 ARMING_STATE_DISARMED = 1  # vehicle_status.arming_state (PX4 >= 1.14)

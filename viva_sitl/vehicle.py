@@ -17,9 +17,13 @@ tests, the trials runner and the Gymnasium environment all drive a Vehicle.
 from __future__ import annotations
 
 import logging
+import math
 from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
+from typing import TYPE_CHECKING, Literal
+
+import numpy as np
 
 from viva_sitl.autopilot import Autopilot, ParamStore
 from viva_sitl.camera import Mount
@@ -29,6 +33,9 @@ from viva_sitl.footage import FootageSource
 from viva_sitl.frame import RenderedFrame
 from viva_sitl.geo import GeoOrigin
 from viva_sitl.sim import MagnifiedRenderLike, Simulator
+
+if TYPE_CHECKING:
+    from viva_sitl.world import WorldModel
 
 InsideFn = Callable[[float, float], bool]
 
@@ -55,6 +62,7 @@ class Vehicle:
     ) -> None:
         self.config = config or SimConfig()
         self.sim = Simulator(self.config, footage, region_render=region_render, prefetch=prefetch)
+        self._world: WorldModel | Literal[False] | None = None  # footage ground truth, built on first use
         self._mount_camera = (
             self.sim.camera
         )  # the camera as configured (a gimbal's angles are applied on top)
@@ -72,7 +80,7 @@ class Vehicle:
             self.inside = None
         else:
             self.inside = geofence
-        self.autopilot = Autopilot(self.params, self.config.physics, inside=self.inside)
+        self.autopilot = self._new_autopilot()
         self.sim.super_resolution = super_resolution
         self.autopilot.start(self.time_s, self.state)  # home and pre-arm checks valid before the first step
         self.steps = 0  # physics steps since construction (all resets included)
@@ -108,10 +116,49 @@ class Vehicle:
         (disarmed on the ground, or armed in Hold for an air start) on the same parameters, as after a reboot. The
         autopilot has seen the initial state: arming is possible before the first step."""
         state = self.sim.reset(seed, pos_ned_m, yaw_rad, vel_ned_m_s)
-        self.autopilot = Autopilot(self.params, self.config.physics, inside=self.inside)
+        self.autopilot = self._new_autopilot()
         self.autopilot.start(state.time_s, state)
         self._sync_params()
         return state
+
+    def _new_autopilot(self) -> Autopilot:
+        """An Autopilot on these parameters; with a `gimbal` camera mount it gets a gimbal whose rest is the mount's
+        configured angles (MAVLink convention: pitch -90 = the nadir mount)."""
+        cam = self._mount_camera
+        neutral = (cam.mount_pitch_deg - 90.0, cam.mount_yaw_deg) if cam.mount is Mount.GIMBAL else None
+        ap = Autopilot(self.params, self.config.physics, inside=self.inside, gimbal_neutral_deg=neutral)
+        ap.follow_track_lookup = self.track_position  # Follow Me of a ground-truth track (FLW_TGT_TRACK)
+        return ap
+
+    def track_position(self, track: int, t_s: float) -> tuple[float, float, float, float] | None:
+        """(north, east, v_north, v_east) of the footage's ground-truth track `track` (viva_sitl.world's index) at
+        sim time t_s, None when it is not there then (or the footage has no ground truth). The world is built on
+        first use (it reads the footage's track files), once."""
+        if self._world is None:
+            try:
+                from viva_sitl.world import world_from_source
+
+                self._world = world_from_source(self.sim.footage)
+            except Exception as exc:  # ground truth is an extra: say why once, follow nothing
+                log.warning("Follow Me: no footage ground truth (%s)", exc)
+                self._world = False
+        if self._world is False or not math.isfinite(t_s):
+            return None
+        tracks = self._world.tracks
+
+        def at(t: float) -> tuple[float, float] | None:
+            objs = tracks.objects_at(t)
+            hit = np.flatnonzero(objs.track == track)
+            return (float(objs.ne_m[hit[0], 0]), float(objs.ne_m[hit[0], 1])) if hit.size else None
+
+        now = at(t_s)
+        if now is None:
+            return None
+        dt = max(1.0 / tracks.fps, 0.2)
+        before = at(t_s - dt) if t_s - dt >= 0.0 else None
+        if before is None:
+            return now[0], now[1], 0.0, 0.0
+        return now[0], now[1], (now[0] - before[0]) / dt, (now[1] - before[1]) / dt
 
     def _sync_params(self) -> None:
         new = self.autopilot.eav_params()  # cached on the parameter revision: an identity test per step

@@ -55,12 +55,16 @@ from viva_sitl.autopilot.context import FlightContext, InsideFn
 from viva_sitl.autopilot.failsafe import battery_level, battery_warning
 from viva_sitl.autopilot.failures import Failures, FailureType, FailureUnit
 from viva_sitl.autopilot.geofence import Geofence, RallyPoint
+from viva_sitl.autopilot.gimbal import GimbalControl, GimbalMode, point_at
 from viva_sitl.autopilot.land_detector import LandDetector, Transition
 from viva_sitl.autopilot.orbit import Orbit
 from viva_sitl.autopilot.params import ParamStore
+from viva_sitl.autopilot.setpoints import MAX_ABS_POS_M
 from viva_sitl.autopilot.tasks import FlightTasks, OffboardKind, RtlPhase
+from viva_sitl.autopilot.tasks.follow import FollowTarget, TrackLookup
 from viva_sitl.autopilot.types import (
     AttitudeTarget,
+    CommandResult,
     Event,
     FlightMode,
     LandedState,
@@ -75,7 +79,13 @@ from viva_sitl.dynamics import EavCommand, EavParams, EavState
 
 
 class Autopilot:
-    def __init__(self, params: ParamStore, eav: EavParams, inside: InsideFn | None = None) -> None:
+    def __init__(
+        self,
+        params: ParamStore,
+        eav: EavParams,
+        inside: InsideFn | None = None,
+        gimbal_neutral_deg: tuple[float, float] | None = None,
+    ) -> None:
         self.params = params
         self.eav = eav  # the airframe as configured; eav_params() applies the SIM_* parameters on top
         self.inside = inside
@@ -87,6 +97,11 @@ class Autopilot:
         self.land_detector = LandDetector(params)
         self.commander = Commander(self.ctx, self.tasks, self.land_detector)
         self._bat_level = 0  # 0 ok, 1 low, 2 critical (events once per crossing)
+        # a gimbal camera mount (the Vehicle passes its configured (pitch, yaw)): None = the camera is fixed
+        self.gimbal: GimbalControl | None = (
+            GimbalControl(gimbal_neutral_deg) if gimbal_neutral_deg is not None else None
+        )
+        self._gimbal_mission_seen: tuple[float, float] | None = None
 
     def eav_params(self) -> EavParams:
         """The EAV parameters with SIM_* applied: the caller swaps it into the physics when it changes
@@ -234,10 +249,26 @@ class Autopilot:
 
     @property
     def gimbal_pitch_yaw_deg(self) -> tuple[float, float] | None:
-        """Last gimbal (pitch, yaw) in degrees a mission item asked for (DO_MOUNT_CONTROL /
-        DO_GIMBAL_MANAGER_PITCHYAW; pitch 0 level, -90 down; yaw relative to the nose), None before any.
-        Vehicle.render applies it to a `gimbal` camera mount."""
-        return self.tasks.mission.gimbal_deg
+        """The gimbal's (pitch, yaw) in degrees now (pitch 0 level, -90 down; yaw relative to the nose), None while
+        it rests at its configured mount. Without a fitted gimbal: the last mission gimbal item's (DO_MOUNT_CONTROL /
+        DO_GIMBAL_MANAGER_PITCHYAW), None before any. With one (`gimbal`, see autopilot/gimbal.py) the latest of
+        the mission's items and the gimbal manager's commands wins. Vehicle.render applies it to a `gimbal` mount."""
+        mission_deg = self.tasks.mission.gimbal_deg
+        g = self.gimbal
+        if g is None:
+            return mission_deg
+        if mission_deg is not self._gimbal_mission_seen:  # a new mission gimbal item since the last read
+            self._gimbal_mission_seen = mission_deg
+            if mission_deg is not None:
+                g.set_angles(self.ctx.now_s, self.ctx.yaw, mission_deg[0], mission_deg[1])
+        pos = self.ctx.pos
+        here = (float(pos[0]), float(pos[1]), float(pos[2]))
+        target = self.tasks.follow.following
+        if self.ctx.mode == FlightMode.AUTO_FOLLOW_TARGET and target is not None:
+            return point_at(target, here, self.ctx.yaw)  # PX4's follow task points the gimbal at the target
+        if g.mode == GimbalMode.NEUTRAL:
+            return None
+        return g.current(self.ctx.now_s, here, self.ctx.yaw)
 
     def pop_payload_actions(self) -> list[PayloadAction]:
         """Camera actions asked for by mission items / the distance trigger since the last call."""
@@ -252,6 +283,33 @@ class Autopilot:
 
     def set_manual_input(self, now_s: float, manual: ManualInput) -> Outcome:
         return self.tasks.manual.set_input(now_s, manual)
+
+    def set_follow_target(
+        self,
+        now_s: float,
+        pos_ned_m: tuple[float, float, float],
+        vel_ned_m_s: tuple[float, float, float] = (0.0, 0.0, 0.0),
+    ) -> Outcome:
+        """A Follow Me target observation (FOLLOW_TARGET), used in AUTO_FOLLOW_TARGET. North/east must be finite
+        and in range; a NaN down is a 2D target; NaN velocity components count as 0."""
+        n, e, d = (float(v) for v in pos_ned_m)
+        if not (math.isfinite(n) and math.isfinite(e)) or max(abs(n), abs(e)) > MAX_ABS_POS_M:
+            return Outcome(CommandResult.DENIED, "Follow target: position not finite or out of range")
+        if math.isfinite(d) and abs(d) > MAX_ABS_POS_M:
+            d = math.nan
+        vel = tuple(float(v) if math.isfinite(v) and abs(v) < 1000.0 else 0.0 for v in vel_ned_m_s)
+        self.tasks.follow.set_target(FollowTarget(n, e, d, (vel[0], vel[1], vel[2]), now_s))
+        return Outcome(CommandResult.ACCEPTED)
+
+    @property
+    def follow_track_lookup(self) -> TrackLookup | None:
+        """(track index, sim time) -> (north, east, v_north, v_east) of a footage ground-truth track, or None: what
+        FLW_TGT_TRACK >= 0 follows. The Vehicle sets it (the autopilot does no I/O)."""
+        return self.tasks.follow.track_lookup
+
+    @follow_track_lookup.setter
+    def follow_track_lookup(self, lookup: TrackLookup | None) -> None:
+        self.tasks.follow.track_lookup = lookup
 
     def gcs_heartbeat(self, now_s: float) -> None:  # for NAV_DLL_ACT link-loss
         if self.failures.is_active(FailureUnit.SYSTEM_MAVLINK_SIGNAL):

@@ -205,6 +205,27 @@ _WIRED_TABLE: tuple[tuple[str, ParamType, float, float, float, str], ...] = (
     ("GF_MAX_HOR_DIST", _F, 0.0, 0.0, 10000.0, "Max horizontal distance from home (m), 0 = off"),
     ("GF_MAX_VER_DIST", _F, 0.0, 0.0, 10000.0, "Max height above home (m), 0 = off"),
     ("MC_ORBIT_RAD_MAX", _F, 1000.0, 1.0, 10000.0, "Maximum radius of an orbit (m)"),
+    # --- Follow Me (autopilot/tasks/follow.py); FLW_TGT_TRACK is ours: follow a footage ground-truth track
+    ("FLW_TGT_HT", _F, 8.0, 8.0, 1000.0, "Follow Me: height above home (ALT_M 0/1) or the target (2) (m)"),
+    ("FLW_TGT_DST", _F, 8.0, 1.0, 1000.0, "Follow Me: horizontal distance to the target (m)"),
+    (
+        "FLW_TGT_FA",
+        _F,
+        180.0,
+        -180.0,
+        180.0,
+        "Follow Me: angle from the target's course (deg, 0 front, 180 behind)",
+    ),
+    ("FLW_TGT_RS", _F, 0.1, 0.0, 1.0, "Follow Me: target position filter (lower follows faster)"),
+    ("FLW_TGT_ALT_M", _I, 0, 0, 2, "Follow Me height: 0 above home, 1 above the ground, 2 above the target"),
+    (
+        "FLW_TGT_TRACK",
+        _I,
+        -1,
+        -1,
+        1000000,
+        "Follow Me target: -1 FOLLOW_TARGET messages, N >= 0 the footage ground-truth track N (viva_sitl.world)",
+    ),
     # --- battery
     ("BAT1_CAPACITY", _F, 5000.0, 100.0, 100000.0, "Battery capacity (mAh)"),
     ("BAT1_N_CELLS", _I, 4, 1, 14, "Cells in series"),

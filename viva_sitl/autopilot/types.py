@@ -28,6 +28,7 @@ class AutoSubMode(enum.IntEnum):
     MISSION = 4
     RTL = 5
     LAND = 6
+    FOLLOW_TARGET = 8
 
 
 class PosctlSubMode(enum.IntEnum):
@@ -49,6 +50,7 @@ class FlightMode(enum.Enum):
     AUTO_MISSION = (MainMode.AUTO, AutoSubMode.MISSION)
     AUTO_RTL = (MainMode.AUTO, AutoSubMode.RTL)
     AUTO_LAND = (MainMode.AUTO, AutoSubMode.LAND)
+    AUTO_FOLLOW_TARGET = (MainMode.AUTO, AutoSubMode.FOLLOW_TARGET)  # PX4's Follow Me
     ORBIT = (MainMode.POSCTL, PosctlSubMode.ORBIT)  # PX4 NAVIGATION_STATE_ORBIT
 
     @property

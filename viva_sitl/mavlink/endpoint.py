@@ -46,7 +46,9 @@ from viva_sitl.mavlink.camera import CameraComponent, is_camera_command
 from viva_sitl.mavlink.codec import DatagramParser, Encoder
 from viva_sitl.mavlink.commands import CommandHandler, CommandRequest
 from viva_sitl.mavlink.config import EndpointStartError, EndpointStats, MavlinkConfig, PortInUseError
+from viva_sitl.mavlink.follow_target import FollowTargetInput
 from viva_sitl.mavlink.ftp import FtpServer
+from viva_sitl.mavlink.gimbal import GimbalManager
 from viva_sitl.mavlink.logs import LogProtocol
 from viva_sitl.mavlink.mission import MissionLimits, MissionProtocol
 from viva_sitl.mavlink.offboard import (
@@ -240,6 +242,20 @@ class MavlinkEndpoint:
             M.MAVLINK_MSG_ID_TIMESYNC: self._on_timesync,
             M.MAVLINK_MSG_ID_SETUP_SIGNING: self._on_setup_signing,
         }
+        # Follow Me's target input (follow_target.py)
+        self.follow_target = FollowTargetInput(vehicle, self._statustext)
+        self._handlers[M.MAVLINK_MSG_ID_FOLLOW_TARGET] = lambda _lk, o, m: self.follow_target.handle(o, m)
+        # the gimbal manager (gimbal.py): only for a `gimbal` camera mount (the autopilot then has a gimbal)
+        self.gimbal: GimbalManager | None = None
+        if getattr(vehicle.autopilot, "gimbal", None) is not None:
+            gm = self.gimbal = GimbalManager(vehicle, self, self._statustext, self.commands._down_from_alt)
+            self.commands.handlers.update(gm.command_handlers())
+            self._handlers[M.MAVLINK_MSG_ID_GIMBAL_MANAGER_SET_ATTITUDE] = self._targeted(
+                lambda _lk, o, m: gm.handle_set_attitude(o, m)
+            )
+            self._handlers[M.MAVLINK_MSG_ID_GIMBAL_MANAGER_SET_PITCHYAW] = self._targeted(
+                lambda _lk, o, m: gm.handle_set_pitchyaw(o, m)
+            )
 
     # --- lifecycle --------------------------------------------------------------------------
     async def start(self) -> None:
@@ -666,6 +682,10 @@ class MavlinkEndpoint:
                 return None
             target = int(params[0])
             return [M.MAVLink_message_interval_message(target, self._get_interval(origin, target))]
+        if self.gimbal is not None:
+            gimbal_msgs = self.gimbal.request_message(msgid)
+            if gimbal_msgs is not None:
+                return gimbal_msgs
         msg = self.telemetry.build(msgid)
         return [msg] if msg is not None else None
 
@@ -793,6 +813,8 @@ class MavlinkEndpoint:
             else:
                 log.info("camera action %s dropped: no camera component", action.kind)
         self.mission.poll(self._now())
+        if self.gimbal is not None:
+            self.gimbal.poll(self._now())
         current = (int(ap.mission_current_seq), len(ap.mission_items))
         if current != self._last_mission_current:
             self._last_mission_current = current

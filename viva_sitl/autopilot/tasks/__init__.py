@@ -8,6 +8,7 @@ Every task has `activate(now_s)` (called when its mode is entered) and `update(n
 from __future__ import annotations
 
 from viva_sitl.autopilot.context import FlightContext
+from viva_sitl.autopilot.tasks.follow import FollowTargetTask
 from viva_sitl.autopilot.tasks.hold import HoldTask
 from viva_sitl.autopilot.tasks.land import LandTask
 from viva_sitl.autopilot.tasks.manual import MANUAL_MODES, ManualTask
@@ -30,6 +31,7 @@ class FlightTasks:
         self.offboard = OffboardTask(ctx)
         self.manual = ManualTask(ctx)
         self.orbit = OrbitTask(ctx)
+        self.follow = FollowTargetTask(ctx)
         self.mission = MissionTask(ctx, self.enter, self.control, self.rtl.update)
 
     def enter(self, mode: FlightMode, now_s: float) -> None:
@@ -53,6 +55,8 @@ class FlightTasks:
             self.offboard.activate(now_s)
         elif mode == FlightMode.ORBIT:
             self.orbit.activate(now_s)
+        elif mode == FlightMode.AUTO_FOLLOW_TARGET:
+            self.follow.activate(now_s)
         elif mode in MANUAL_MODES:
             self.manual.activate(now_s)
         if prev != mode and prev == FlightMode.OFFBOARD:
@@ -73,6 +77,8 @@ class FlightTasks:
             return self.offboard.update(now_s, dt, state, eav)
         if mode == FlightMode.ORBIT:
             return self.orbit.update(now_s, dt, state, eav)
+        if mode == FlightMode.AUTO_FOLLOW_TARGET:
+            return self.follow.update(now_s, dt, state, eav)
         if mode in MANUAL_MODES:
             return self.manual.update(now_s, dt, state, eav)
         return self.hold.update(now_s, dt, state, eav)
@@ -97,6 +103,7 @@ class FlightTasks:
 __all__ = [
     "MANUAL_MODES",
     "FlightTasks",
+    "FollowTargetTask",
     "HoldTask",
     "LandTask",
     "ManualTask",
