@@ -42,12 +42,16 @@ if str(REPO) not in sys.path:
 PILOT = "{python} mission_scripts/mavsdk_precision_land.py {mavsdk_url} --north 8 --east 5 --altitude 10"
 
 
+TIMING = "realtime"  # --timing: the trials' clock (viva_sitl.timing)
+
+
 def bench_spec(n: int, speed: float, seed: int) -> Any:
     from viva_sitl.evaluation.spec import spec_from_dict
 
     return spec_from_dict(
         {
-            "trials": {"name": "ext-bench", "n": n, "seed": seed, "timeout_s": 150.0, "speed": speed},
+            "trials": {"name": "ext-bench", "n": n, "seed": seed, "timeout_s": 150.0, "speed": speed,
+                       "timing": TIMING},
             "scenario": {"footage": "synthetic", "start": "ground", "north_m": [-30.0, 30.0],
                          "east_m": [-30.0, 30.0], "altitude_m": 10.0, "yaw_deg": [0.0, 360.0],
                          "land_at_s": 149.0},  # not reached: the script lands on its own
@@ -196,13 +200,16 @@ def main() -> int:
     ap.add_argument("--seed", type=int, default=3)
     ap.add_argument("--tol-point-m", type=float, default=0.5)
     ap.add_argument("--tol-time-s", type=float, default=2.0)
+    ap.add_argument("--timing", choices=("realtime", "lockstep", "charged"), default="realtime")
     args = ap.parse_args()
+    global TIMING
+    TIMING = args.timing
     speeds = sorted(set(args.speeds))
     if speeds[0] != 1.0:
         speeds = [1.0, *speeds]
     res: dict[str, Any] = {
         "machine": f"{platform.node()} {platform.machine()} {os.cpu_count()} cpus, {platform.python_version()}",
-        "load_avg_before": os.getloadavg(), "pilot": PILOT, "n": args.n, "jobs": args.jobs,
+        "load_avg_before": os.getloadavg(), "pilot": PILOT, "n": args.n, "jobs": args.jobs, "timing": args.timing,
         "tolerances": {"touchdown_point_m": args.tol_point_m, "time_to_land_s": args.tol_time_s}, "runs": [],
     }  # fmt: skip
     base: dict[str, Any] | None = None

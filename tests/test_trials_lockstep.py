@@ -70,6 +70,52 @@ while True:
             break
 """
 
+# A companion-computer pilot: reads the frame-and-pose socket (viva_sitl's FrameClient), computes 20-40 ms of CPU
+# per frame (seeded), and flies velocity setpoints from each frame's pose toward a spot 5 m south of where it was
+# told to land; below 2 m it commands LAND. MAVLink only between frames (non-blocking).
+FRAME_PILOT = r"""
+import json, os, random, sys, time
+os.environ["MAVLINK20"] = "1"
+from pymavlink import mavutil
+from viva_sitl.video.frame_socket import FrameClient
+scenario = json.load(open(os.environ["VIVA_SITL_SCENARIO"]))
+rng = random.Random(scenario["index"])
+m = mavutil.mavlink_connection(sys.argv[1], source_system=255)
+m.wait_heartbeat(timeout=30)
+m.mav.heartbeat_send(mavutil.mavlink.MAV_TYPE_GCS, mavutil.mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0)
+mask = 0b0000_1111_1100_0111
+state, target = "wait", None
+with FrameClient(sys.argv[2], latest_only=False, rcvhwm=4) as client:
+    while True:
+        while (msg := m.recv_match(blocking=False)) is not None:
+            t = msg.get_type()
+            if t == "STATUSTEXT" and "land now" in msg.text and state == "wait":
+                state = "offboard"
+            elif t == "HEARTBEAT" and msg.get_srcSystem() == m.target_system and state == "landing":
+                if not msg.base_mode & mavutil.mavlink.MAV_MODE_FLAG_SAFETY_ARMED:
+                    print("disarmed: done", flush=True)
+                    sys.exit(0)
+        item = client.receive(timeout_s=0.5)
+        if item is None or state in ("wait", "landing"):
+            continue
+        n, e, d = item[1]["pos_ned_m"]
+        if target is None:
+            target = (n - 5.0, e)
+        end = time.thread_time() + rng.uniform(0.02, 0.04)
+        while time.thread_time() < end:
+            pass
+        vn, ve = max(-3.0, min(3.0, target[0] - n)), max(-3.0, min(3.0, target[1] - e))
+        m.mav.set_position_target_local_ned_send(0, m.target_system, 1, mavutil.mavlink.MAV_FRAME_LOCAL_NED, mask,
+                                                 0, 0, 0, vn, ve, 1.5, 0, 0, 0, 0, 0)
+        if state == "offboard":
+            m.mav.command_long_send(m.target_system, 1, mavutil.mavlink.MAV_CMD_DO_SET_MODE, 0,
+                                    mavutil.mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, 6, 0, 0, 0, 0, 0)
+            state = "flying"
+        elif -d < 2.0:
+            m.mav.command_long_send(m.target_system, 1, mavutil.mavlink.MAV_CMD_NAV_LAND, 0, 0, 0, 0, 0, 0, 0, 0)
+            state = "landing"
+"""
+
 SPINNER_PILOT = r"""
 import os, sys
 os.environ["MAVLINK20"] = "1"
@@ -82,10 +128,10 @@ while True:  # busy polling: never waits for anything
 """
 
 
-def _spec(timing: str, n: int = 2, factor: float = 1.0, speed: float = 2.0) -> object:
+def _spec(timing: str, n: int = 2, factor: float = 1.0, speed: float = 2.0, frames: bool = False) -> object:
     return spec_from_dict(
         {"trials": {"name": "lockstep", "n": n, "seed": 3, "timeout_s": 60.0, "speed": speed, "timing": timing,
-                    "pilot_cpu_factor": factor},
+                    "pilot_cpu_factor": factor, "frames": frames},
          "scenario": {"footage": "synthetic", "start": "air", "north_m": [-20.0, 20.0], "east_m": [-20.0, 20.0],
                       "altitude_m": [8.0, 10.0], "land_at_s": [1.0, 2.0]}},
         "lockstep",
@@ -169,3 +215,21 @@ def test_a_pilot_that_never_waits_ends_its_lockstep_trial_with_the_reason(tmp_pa
     (row,) = camp.ordered_rows()
     assert row["end"] == "pilot_error" and "never became idle" in row["end_detail"], row
     assert row["timing_ok"] is False
+
+
+@pytest.mark.slow
+def test_lockstep_frame_socket_pilot_is_load_independent(tmp_path: Path) -> None:
+    """Frames are rendered at exact sim times in lockstep and the clock waits until the pilot is done with each."""
+    script = tmp_path / "frame_pilot.py"
+    script.write_text(FRAME_PILOT)
+    spec = _spec("lockstep", n=1, frames=True)
+    runs = []
+    for k, (jobs, busy) in enumerate([(1, 0), (1, 2)]):
+        with _busy_loops(busy):
+            camp = run_campaign(spec, f"{{python}} {script} {{pymavlink_url}} {{frame_socket}}", tmp_path / f"o{k}",
+                                jobs=jobs, progress=False)  # fmt: skip
+        rows = camp.ordered_rows()
+        assert [r["end"] for r in rows] == ["landed"], [(r["end"], r["end_detail"]) for r in rows]
+        runs.append(rows)
+    assert rows_equal(runs[0], runs[1]), (_strip(runs[0]), _strip(runs[1]))
+    assert abs(runs[0][0]["touchdown_north_m"] - (runs[0][0]["start_north_m"] - 5.0)) < 1.0

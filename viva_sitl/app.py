@@ -145,7 +145,7 @@ class SitlApp:
         self.pilot_pid: int | None = None  # --pilot-pid; else found from the first MAVLink message's sender
         self._pilot_tree: PilotTree | None = None
         if self.trial is not None:
-            self.trial.timing = self.timing_stats.to_dict
+            self.trial.timing = self._timing_record
 
     # --- VehicleLink ----------------------------------------------------------------------
     @property
@@ -239,6 +239,12 @@ class SitlApp:
                 watch.cancel()
         else:
             await self._physics_lockstep()
+
+    def _timing_record(self) -> dict[str, object]:
+        """The run's clock and what its pilot experienced (end.json "timing", the stop line)."""
+        self.timing_stats.max_setpoint_gap_s = self.endpoint.max_setpoint_gap_s
+        self.timing_stats.skipped_steps = self.pacer.skipped_steps
+        return self.timing_stats.to_dict()
 
     def _find_pilot(self) -> PilotTree | None:
         """The pilot's process group: --pilot-pid's, else the owner's of the local UDP port its MAVLink came from."""
@@ -494,7 +500,7 @@ class SitlApp:
         }
         if self.pilot_wait_wall_s is not None:
             stats["pilot_wait_wall_s"] = self.pilot_wait_wall_s
-        stats["timing"] = self.timing_stats.to_dict()
+        stats["timing"] = self._timing_record()
         if self.scheduler is not None:
             render = self.scheduler.stats()
             stats["render"] = render

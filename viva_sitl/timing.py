@@ -73,6 +73,8 @@ class TimingStats:
     pilot_cpu_s: float = 0.0
     pilot_run_delay_s: float = 0.0  # time the pilot's threads were runnable but had no CPU
     pilot_wall_s: float = 0.0  # wall seconds the pilot was watched
+    max_setpoint_gap_s: float = 0.0  # the longest sim-time gap between two offboard setpoints it sent
+    skipped_steps: int = 0  # realtime: physics steps the clock skipped (the simulation itself fell behind)
     note: str = ""
     _cpu0: int | None = field(default=None, repr=False)
     _delay0: int = field(default=0, repr=False)
@@ -103,7 +105,8 @@ class TimingStats:
             "charged_sim_s": round(self.charged_sim_s, 4), "never_idle": self.never_idle,
             "pilot_cpu_s": round(self.pilot_cpu_s, 3), "pilot_run_delay_s": round(self.pilot_run_delay_s, 3),
             "pilot_wall_s": round(self.pilot_wall_s, 3), "starved": self.starved,
-            "lockstep_held": self.lockstep_held, "note": self.note,
+            "lockstep_held": self.lockstep_held, "max_setpoint_gap_s": round(self.max_setpoint_gap_s, 4),
+            "skipped_steps": self.skipped_steps, "note": self.note,
         }  # fmt: skip
 
 

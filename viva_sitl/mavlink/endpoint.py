@@ -153,6 +153,9 @@ class MavlinkEndpoint:
         # charged timing: received datagrams wait in _held (due sim time, link, data, peer)
         self._holding = False
         self._held: deque[tuple[float | None, LinkKind, bytes, tuple[str, int]]] = deque()
+        # the longest gap (sim s) between two offboard setpoints handled: what a pilot's stream looked like here
+        self.max_setpoint_gap_s = 0.0
+        self._last_setpoint_s: float | None = None
         self._statustext_id = 0
         self._last_setpoint_warn = -math.inf
         self._loop: asyncio.AbstractEventLoop | None = None
@@ -500,6 +503,12 @@ class MavlinkEndpoint:
             _, kind, data, addr = held.popleft()
             self._handle_datagram(kind, data, addr)
 
+    def _setpoint_seen(self) -> None:
+        now = self._now()
+        if self._last_setpoint_s is not None and now >= self._last_setpoint_s:
+            self.max_setpoint_gap_s = max(self.max_setpoint_gap_s, now - self._last_setpoint_s)
+        self._last_setpoint_s = now
+
     def _on_datagram(self, kind: LinkKind, data: bytes, addr: tuple[str, int]) -> None:
         if self._holding:
             self._held.append((None, kind, data, addr))
@@ -619,6 +628,7 @@ class MavlinkEndpoint:
             return
         outcome = ap.set_position_target(self.vehicle.time_s, target)
         self._stats.setpoints_handled += 1
+        self._setpoint_seen()
         if not outcome.ok:
             self._stats.setpoints_refused += 1
 
@@ -632,6 +642,7 @@ class MavlinkEndpoint:
             return
         outcome = self.vehicle.autopilot.set_attitude_target(self.vehicle.time_s, target)
         self._stats.setpoints_handled += 1
+        self._setpoint_seen()
         if not outcome.ok:
             self._stats.setpoints_refused += 1
 
