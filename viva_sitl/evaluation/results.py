@@ -137,7 +137,7 @@ def run_record(
     kind = "human" if human else "in-process" if is_inprocess(pilot) else "external"
     return {
         "spec_name": spec.name, "spec_hash": spec_hash(spec), "seed": spec.seed, "n": spec.n, "pilot": pilot, "pilot_kind": kind,
-        "timing": timing, "speed": spec.speed, "versions": versions(pilot), "python_executable": sys.executable,
+        "timing": timing, "pilot_cpu_factor": None, "speed": spec.speed, "versions": versions(pilot), "python_executable": sys.executable,
     }  # fmt: skip
 
 
@@ -154,9 +154,11 @@ def finished_trials(out_dir: Path) -> list[int]:
     return sorted(int(d.name) for d in dirs if d.name.isdigit() and (d / "result.json").is_file())
 
 
-def load_finished(out_dir: Path, scenarios: list[Scenario], pilot: str) -> dict[int, Row]:
+def load_finished(
+    out_dir: Path, scenarios: list[Scenario], pilot: str, *, keep_infra: bool = False
+) -> dict[int, Row]:
     """Rows already on disk whose scenario and pilot match (for --resume); infrastructure errors are left out, so
-    --resume runs those trials again."""
+    --resume runs those trials again (keep_infra: kept, for trials this run does not run again)."""
     out: dict[int, Row] = {}
     for sc in scenarios:
         d = trial_dir(out_dir, sc.index)
@@ -165,7 +167,11 @@ def load_finished(out_dir: Path, scenarios: list[Scenario], pilot: str) -> dict[
         except (FileNotFoundError, json.JSONDecodeError):
             continue
         row = res.get("row", {})
-        if res.get("scenario") == sc.to_dict() and row.get("pilot") == pilot and not is_infra(row):
+        if (
+            res.get("scenario") == sc.to_dict()
+            and row.get("pilot") == pilot
+            and (keep_infra or not is_infra(row))
+        ):
             out[sc.index] = row
     return out
 
