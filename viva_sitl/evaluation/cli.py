@@ -110,6 +110,35 @@ def build_parser() -> argparse.ArgumentParser:
         "--html", help="write the comparison as a self-contained HTML page here (every pair listed; a "
         "leaderboard's page: default leaderboard.html)",
     )  # fmt: skip
+    su = sub.add_parser(
+        "suite", help="frozen benchmark suites: list | run SUITE --pilot ... -o OUT | card OUT"
+    )
+    ss = su.add_subparsers(dest="suite_cmd", required=True)
+    ss.add_parser("list", help="the shipped suites: id, splits, content hash, whether their footage is here")
+    sh = ss.add_parser(
+        "hash", help="a suite's content hashes as its [frozen] tables (to publish a new version)"
+    )
+    sh.add_argument("suite", help="suite name or file")
+    sr = ss.add_parser("run", help="fly a pilot (and the descend baseline) over a suite's splits")
+    sr.add_argument("suite", help="suite name (see `trials suite list`) or a suite file")
+    sr.add_argument("--pilot", required=True, help="as `trials run --pilot`")
+    sr.add_argument(
+        "-o", "--out", required=True, help="output directory (OUT/dev, OUT/test, OUT/baseline/...)"
+    )
+    sr.add_argument(
+        "--split", choices=["dev", "test", "all"], default="all", help="which split (default: all)"
+    )
+    sr.add_argument("--jobs", type=_pos_int, help=f"parallel trials (default: cores = {os.cpu_count()})")
+    sr.add_argument(
+        "--limit", type=_pos_int,
+        help="fly only the first K scenarios of each split (a smoke run; its card says PARTIAL: not citable)",
+    )  # fmt: skip
+    sg = sr.add_mutually_exclusive_group()
+    sg.add_argument("--resume", action="store_true", help="complete the suite run in OUT")
+    sg.add_argument("--force", action="store_true", help="replace what OUT holds")
+    sr.add_argument("--no-progress", action="store_true", help="no progress bar")
+    sk = ss.add_parser("card", help="write OUT/card.md + OUT/card.json: the citable result of a suite run")
+    sk.add_argument("out", help="OUT of `trials suite run`")
     rp = sub.add_parser("report", help="write OUT_DIR/report.html again from its results.json")
     rp.add_argument("out", help="OUT_DIR of a run")
     s = sub.add_parser("show", help="summary of a run, or one trial")
@@ -173,6 +202,8 @@ def trials_main(argv: list[str]) -> int:
             return _show(args)
         if args.cmd == "report":
             return _report(args)
+        if args.cmd == "suite":
+            return _suite(args)
         if args.cmd == "scenarios":
             from viva_sitl.evaluation.spec import draw_scenarios, load_spec
 
@@ -416,6 +447,54 @@ def _leaderboard(args: argparse.Namespace) -> int:
               f"McNemar p {v['mcnemar_p']}, Holm p {v['holm_p']}")  # fmt: skip
         print(f"  {e['rank']}. {e['pilot'][:40]:40s} success {e['success']}/{e['judged']} {rate}  {vs}")
     print(f"  page: {page}")
+    return 0
+
+
+def _suite(args: argparse.Namespace) -> int:
+    from viva_sitl.evaluation import suites
+
+    if args.suite_cmd == "list":
+        for name in suites.suite_names():
+            su = suites.load_suite(name)
+            parts = []
+            for split, spec in su.splits.items():
+                frozen = str(su.frozen.get(split, {}).get("sha256", "?"))[:12]
+                parts.append(f"{split}: {spec.n} trials over {', '.join(spec.footage)} (sha256 {frozen})")
+            try:
+                for spec in su.splits.values():
+                    for f in spec.footage:
+                        suites.footage_hash(f)
+                here = "available"
+            except Exception as exc:  # noqa: BLE001 - a footage that is not on this machine
+                here = f"unavailable here ({str(exc).splitlines()[0][:80]})"
+            print(f"{su.id}  {su.title}; {'; '.join(parts)}; {here}")
+        return 0
+    if args.suite_cmd == "hash":
+        su = suites.load_suite(args.suite)
+        for split, spec in su.splits.items():
+            h = suites.split_hashes(spec)
+            foot = ", ".join(f'"{k}" = "{v}"' for k, v in h["footage"].items())
+            print(f'[frozen.{split}]\nsha256 = "{h["sha256"]}"\nscenarios = "{h["scenarios"]}"\n'
+                  f'scoring = "{h["scoring"]}"\nfootage = {{ {foot} }}')  # fmt: skip
+        return 0
+    if args.suite_cmd == "run":
+        su = suites.load_suite(args.suite)
+        check_external_pilot(args.pilot)
+        out = Path(args.out)
+        splits = suites.SPLITS if args.split == "all" else (args.split,)
+        rec = suites.run_suite(su, args.pilot, out, splits=splits, jobs=args.jobs, limit=args.limit,
+                               resume=args.resume, force=args.force, progress=not args.no_progress)  # fmt: skip
+        print(f"{rec['suite']} (sha256 {rec['suite_sha256'][:16]}) [{args.pilot}]: {out / 'suite.json'}; "
+              f"the card: viva-sitl trials suite card {out}")  # fmt: skip
+        return 0
+    c = suites.card(Path(args.out))
+    for split, s in c["splits"].items():
+        sr, sg = s["success"], s["safety_gain_vs_descend"]
+        rate = "n/a" if sr["rate"] is None else f"{100 * sr['rate']:.1f} %"
+        gain = "n/a" if sg["value"] is None else f"{sg['value']:+.2f}"
+        print(f"{c['suite']} {split} [{c['pilot']}]: success {sr['k']}/{sr['judged']} = {rate}, safety gain over "
+              f"descend {gain}{' (PARTIAL: not citable)' if c['partial'] else ''}")  # fmt: skip
+    print(f"  card: {Path(args.out) / 'card.md'}, {Path(args.out) / 'card.json'}")
     return 0
 
 
