@@ -332,7 +332,7 @@ def run_campaign(
     spec = dataclasses.replace(
         spec, n=spec.n if n is None else n, seed=spec.seed if seed is None else seed, pilot=pilot
     )
-    scenarios = draw_scenarios(spec)
+    scenarios = all_scenarios = draw_scenarios(spec)
     if only is not None:
         bad = [k for k in only if not 0 <= k < len(scenarios)]
         if bad:
@@ -346,14 +346,24 @@ def run_campaign(
     camp = Campaign(spec, pilot, scenarios, out, backend=backend, jobs=jobs)
     if resume:
         camp.rows = load_finished(out, scenarios, pilot)
+        if only is not None:
+            # --resume --trial K: the run in OUT keeps its other finished trials (their infrastructure errors
+            # too, as they are): results.json and the report go on covering the whole run, not K alone
+            chosen = set(only)
+            kept = load_finished(
+                out, [s for s in all_scenarios if s.index not in chosen], pilot, keep_infra=True
+            )
+            if kept:
+                camp.scenarios = all_scenarios
+                camp.rows.update(kept)
     todo = [s for s in scenarios if s.index not in camp.rows]
     limit = wall_limit_s if wall_limit_s is not None else default_wall_limit_s(spec, pilot)
-    by_index = {s.index: s for s in scenarios}
+    by_index = {s.index: s for s in all_scenarios}
     bar = None
     if progress:
         from tqdm import tqdm
 
-        bar = tqdm(total=len(scenarios), initial=len(camp.rows), unit="trial", desc=f"{spec.name} [{pilot}]",
+        bar = tqdm(total=len(scenarios), initial=len(scenarios) - len(todo), unit="trial", desc=f"{spec.name} [{pilot}]",
                    dynamic_ncols=True)  # fmt: skip
     # the report draws with matplotlib (~0.6 s of CPU + font-cache reads to import): import it while the last trials
     # fly, once fewer trials are left than cores (a core is then idle), not after the last one; nor at the start of a

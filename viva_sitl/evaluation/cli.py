@@ -100,13 +100,56 @@ def build_parser() -> argparse.ArgumentParser:
                    help=f"remote ground-station port (default {QGC_GCS_PORT}: QGroundControl connects by itself)")  # fmt: skip
     f.add_argument("--video-port", type=_port, default=QGC_VIDEO_PORT,
                    help=f"UDP port of the H.264 RTP video (default {QGC_VIDEO_PORT}: QGroundControl shows it)")  # fmt: skip
-    c = sub.add_parser("compare", help="paired statistics of two runs over the same scenarios")
-    c.add_argument("a", help="OUT_DIR of run A")
-    c.add_argument("b", help="OUT_DIR of run B")
+    c = sub.add_parser(
+        "compare",
+        help="paired statistics of two runs over the same scenarios; three or more (or --baseline): a leaderboard",
+    )
+    c.add_argument(
+        "runs", nargs="+", metavar="OUT_DIR",
+        help="OUT_DIRs of runs: two = A B (paired statistics, B - A); more: a ranked table against --baseline",
+    )  # fmt: skip
+    c.add_argument(
+        "--baseline", help="the OUT_DIR every other run is compared with (a leaderboard; default: the first)"
+    )
+    c.add_argument(
+        "--allow-mismatch", action="store_true",
+        help="compare runs that differ in timing, pilot CPU factor, speed, spec or viva-sitl version (refused "
+        "otherwise): a WARNING and the differences go into the output",
+    )  # fmt: skip
     c.add_argument("-o", "--out", help="write the comparison as JSON here")
     c.add_argument(
-        "--html", help="write the comparison as a self-contained HTML page here (every pair listed)"
+        "--html", help="write the comparison as a self-contained HTML page here (every pair listed; a "
+        "leaderboard's page: default leaderboard.html)",
+    )  # fmt: skip
+    su = sub.add_parser(
+        "suite", help="frozen benchmark suites: list | run SUITE --pilot ... -o OUT | card OUT"
     )
+    ss = su.add_subparsers(dest="suite_cmd", required=True)
+    ss.add_parser("list", help="the shipped suites: id, splits, content hash, whether their footage is here")
+    sh = ss.add_parser(
+        "hash", help="a suite's content hashes as its [frozen] tables (to publish a new version)"
+    )
+    sh.add_argument("suite", help="suite name or file")
+    sr = ss.add_parser("run", help="fly a pilot (and the descend baseline) over a suite's splits")
+    sr.add_argument("suite", help="suite name (see `trials suite list`) or a suite file")
+    sr.add_argument("--pilot", required=True, help="as `trials run --pilot`")
+    sr.add_argument(
+        "-o", "--out", required=True, help="output directory (OUT/dev, OUT/test, OUT/baseline/...)"
+    )
+    sr.add_argument(
+        "--split", choices=["dev", "test", "all"], default="all", help="which split (default: all)"
+    )
+    sr.add_argument("--jobs", type=_pos_int, help=f"parallel trials (default: cores = {os.cpu_count()})")
+    sr.add_argument(
+        "--limit", type=_pos_int,
+        help="fly only the first K scenarios of each split (a smoke run; its card says PARTIAL: not citable)",
+    )  # fmt: skip
+    sg = sr.add_mutually_exclusive_group()
+    sg.add_argument("--resume", action="store_true", help="complete the suite run in OUT")
+    sg.add_argument("--force", action="store_true", help="replace what OUT holds")
+    sr.add_argument("--no-progress", action="store_true", help="no progress bar")
+    sk = ss.add_parser("card", help="write OUT/card.md + OUT/card.json: the citable result of a suite run")
+    sk.add_argument("out", help="OUT of `trials suite run`")
     rp = sub.add_parser("report", help="write OUT_DIR/report.html again from its results.json")
     rp.add_argument("out", help="OUT_DIR of a run")
     s = sub.add_parser("show", help="summary of a run, or one trial")
@@ -170,6 +213,8 @@ def trials_main(argv: list[str]) -> int:
             return _show(args)
         if args.cmd == "report":
             return _report(args)
+        if args.cmd == "suite":
+            return _suite(args)
         if args.cmd == "scenarios":
             from viva_sitl.evaluation.spec import draw_scenarios, load_spec
 
@@ -311,11 +356,41 @@ def _fly(args: argparse.Namespace) -> int:
     return 130 if row["end"] == "aborted" else 0
 
 
+def _mismatch_gate(docs: list[tuple[str, dict[str, Any]]], base: int, allow: bool) -> list[str] | None:
+    """The differences in conditions between each run and the baseline run, one line each; None = refused
+    (printed on stderr, one line per difference), [] = comparable."""
+    from viva_sitl.evaluation.compare import run_mismatches
+
+    base_dir, base_doc = docs[base]
+    diffs: list[str] = []
+    for i, (d, doc) in enumerate(docs):
+        if i != base:
+            diffs += [f"{base_dir} vs {d}: {line}" for line in run_mismatches(base_doc, doc, base_dir, d)]
+    if diffs and not allow:
+        print("viva-sitl trials: compare refused: the runs were not made under the same conditions "
+              "(--allow-mismatch compares them anyway):", file=sys.stderr)  # fmt: skip
+        for line in diffs:
+            print(f"  differs: {line}", file=sys.stderr)
+        return None
+    for line in diffs:
+        print(f"WARNING: not the same conditions: {line}")
+    return diffs
+
+
 def _compare(args: argparse.Namespace) -> int:
     from viva_sitl.evaluation.report import compare_docs, read_results
 
+    if len(args.runs) < 2:
+        raise ValueError("compare needs at least two OUT_DIRs")
+    if args.baseline is not None or len(args.runs) > 2:
+        return _leaderboard(args)
+    args.a, args.b = args.runs
     a, b = read_results(args.a), read_results(args.b)
+    diffs = _mismatch_gate([(args.a, a), (args.b, b)], 0, args.allow_mismatch)
+    if diffs is None:
+        return 2
     res = compare_docs(a, b)
+    res["mismatches"] = diffs
     if not res["pairs"]:
         raise ValueError(
             f"{args.a} and {args.b} have no trial in common (pairs match on trial index and scenario seed): "
@@ -343,11 +418,100 @@ def _compare(args: argparse.Namespace) -> int:
     else:
         print("  success: unavailable (no ground truth)")
     for key, d in res["scores"].items():
-        if d["pairs"]:
+        if d["pairs"] and d.get("ordinal"):  # risk level: levels, never a mean difference
+            print(f"  {key:32s} B lower in {d['b_lower']}, same {d['same']}, higher {d['b_higher']} of {d['pairs']} "
+                  f"pairs (median A {d['median_a']}, B {d['median_b']}; sign test p = {d['sign_test_p']})")  # fmt: skip
+        elif d["pairs"]:
             print(f"  {key:32s} A {d['mean_a']:>9} B {d['mean_b']:>9}  B-A {d['mean_diff_b_minus_a']:>9} "
                   f"(95 % CI {d['diff_ci95'][0]}..{d['diff_ci95'][1]}), {d['pairs']} pairs")  # fmt: skip
         else:
             print(f"  {key:32s} unavailable (no pair has it on both sides)")
+    if args.html:
+        print(f"  page: {args.html}")
+    return 0
+
+
+def _leaderboard(args: argparse.Namespace) -> int:
+    """Three or more runs (or --baseline): every run paired with the baseline, ranked, written as a page."""
+    from viva_sitl.evaluation.compare import leaderboard, render_leaderboard_html
+    from viva_sitl.evaluation.report import read_results
+
+    dirs = [str(_run_dir(p)) for p in args.runs]
+    if len(set(dirs)) != len(dirs):
+        raise ValueError("the same OUT_DIR is given twice")
+    base = str(_run_dir(args.baseline)) if args.baseline is not None else dirs[0]
+    if base not in dirs:
+        dirs.insert(0, base)  # --baseline B A C: B joins the runs
+    docs = [(d, read_results(d)) for d in dirs]
+    diffs = _mismatch_gate(docs, dirs.index(base), args.allow_mismatch)
+    if diffs is None:
+        return 2
+    board = leaderboard(docs, dirs.index(base))
+    if not board["shared_trials"]:
+        raise ValueError("the runs have no trial in common with each other (pairs match on trial index and "
+                         "scenario seed): run every pilot on the same spec with the same --seed")  # fmt: skip
+    board["mismatches"] = diffs
+    page = Path(args.html or "leaderboard.html")
+    page.write_text(render_leaderboard_html(board, dict(docs), diffs))
+    if args.out:
+        Path(args.out).write_text(json.dumps(board, indent=1))
+    print(f"leaderboard against {board['baseline_pilot']} ({base}): {board['shared_trials']} shared scenarios, "
+          f"same scenarios: {board['same_scenarios']}; p-values Holm-adjusted over {len(dirs) - 1} comparisons")  # fmt: skip
+    for e in board["runs"]:
+        rate = "unavailable" if e["rate"] is None else f"{100 * e['rate']:5.1f} %"
+        v = e.get("vs_baseline")
+        vs = ("baseline" if v is None else f"vs baseline {v['wins']} W / {v['losses']} L / {v['ties']} ties, "
+              f"McNemar p {v['mcnemar_p']}, Holm p {v['holm_p']}")  # fmt: skip
+        print(f"  {e['rank']}. {e['pilot'][:40]:40s} success {e['success']}/{e['judged']} {rate}  {vs}")
+    print(f"  page: {page}")
+    return 0
+
+
+def _suite(args: argparse.Namespace) -> int:
+    from viva_sitl.evaluation import suites
+
+    if args.suite_cmd == "list":
+        for name in suites.suite_names():
+            su = suites.load_suite(name)
+            parts = []
+            for split, spec in su.splits.items():
+                frozen = str(su.frozen.get(split, {}).get("sha256", "?"))[:12]
+                parts.append(f"{split}: {spec.n} trials over {', '.join(spec.footage)} (sha256 {frozen})")
+            try:
+                for spec in su.splits.values():
+                    for f in spec.footage:
+                        suites.footage_hash(f)
+                here = "available"
+            except Exception as exc:  # noqa: BLE001 - a footage that is not on this machine
+                here = f"unavailable here ({str(exc).splitlines()[0][:80]})"
+            print(f"{su.id}  {su.title}; {'; '.join(parts)}; {here}")
+        return 0
+    if args.suite_cmd == "hash":
+        su = suites.load_suite(args.suite)
+        for split, spec in su.splits.items():
+            h = suites.split_hashes(spec)
+            foot = ", ".join(f'"{k}" = "{v}"' for k, v in h["footage"].items())
+            print(f'[frozen.{split}]\nsha256 = "{h["sha256"]}"\nscenarios = "{h["scenarios"]}"\n'
+                  f'scoring = "{h["scoring"]}"\nfootage = {{ {foot} }}')  # fmt: skip
+        return 0
+    if args.suite_cmd == "run":
+        su = suites.load_suite(args.suite)
+        check_external_pilot(args.pilot)
+        out = Path(args.out)
+        splits = suites.SPLITS if args.split == "all" else (args.split,)
+        rec = suites.run_suite(su, args.pilot, out, splits=splits, jobs=args.jobs, limit=args.limit,
+                               resume=args.resume, force=args.force, progress=not args.no_progress)  # fmt: skip
+        print(f"{rec['suite']} (sha256 {rec['suite_sha256'][:16]}) [{args.pilot}]: {out / 'suite.json'}; "
+              f"the card: viva-sitl trials suite card {out}")  # fmt: skip
+        return 0
+    c = suites.card(Path(args.out))
+    for split, s in c["splits"].items():
+        sr, sg = s["success"], s["safety_gain_vs_descend"]
+        rate = "n/a" if sr["rate"] is None else f"{100 * sr['rate']:.1f} %"
+        gain = "n/a" if sg["value"] is None else f"{sg['value']:+.2f}"
+        print(f"{c['suite']} {split} [{c['pilot']}]: success {sr['k']}/{sr['judged']} = {rate}, safety gain over "
+              f"descend {gain}{' (PARTIAL: not citable)' if c['partial'] else ''}")  # fmt: skip
+    print(f"  card: {Path(args.out) / 'card.md'}, {Path(args.out) / 'card.json'}")
     return 0
 
 

@@ -155,7 +155,11 @@ def risk_panels(
     """Group the touchdowns by the footage frame they happened at (`frame_of(t) -> frame`): one panel per distinct
     frame, drawn at that frame's time; more than max_panels: max_panels of those frames spread over them
     (quantiles) and each touchdown goes to the panel of the nearest frame (the caption says so)."""
-    times = sorted((touchdown_footage_time_s(r), r) for r in rows if r.get("touchdown_north_m") is not None)
+    # by time only: two touchdowns at the same footage time must not compare their rows (dicts)
+    times = sorted(
+        ((touchdown_footage_time_s(r), r) for r in rows if r.get("touchdown_north_m") is not None),
+        key=lambda tr: tr[0],
+    )
     if not times:
         return []
     by_frame: dict[int, list[tuple[float, Row]]] = {}
@@ -567,6 +571,10 @@ def render_compare_html(res: dict[str, Any], a_dir: str, b_dir: str) -> str:
              f"{res['b']['seed']}). {res['pairs']} pairs (same trial index and scenario seed); same scenarios: "
              f"<b>{res['same_scenarios']}</b>; only in A {res['unmatched_a']}, only in B {res['unmatched_b']} "
              "(left out).</p>"]  # fmt: skip
+    if res.get("mismatches"):
+        parts.append("<p class='bad' id='mismatch'><b>WARNING: the runs were not made under the same conditions"
+                     "</b> (compared with --allow-mismatch): "
+                     + "; ".join(html.escape(x) for x in res["mismatches"]) + ".</p>")  # fmt: skip
     if not res["same_scenarios"]:
         parts.append("<p class='bad'>The runs were drawn from different scenarios: the pairs match by trial index "
                      "and seed only.</p>")  # fmt: skip
@@ -584,6 +592,14 @@ def render_compare_html(res: dict[str, Any], a_dir: str, b_dir: str) -> str:
         if not d["pairs"]:
             parts.append(f"<tr data-score='{key}'><td class='l'>{key}</td><td>0</td>"
                          "<td colspan=4 class='l'>unavailable</td></tr>")  # fmt: skip
+            continue
+        if d.get(
+            "ordinal"
+        ):  # risk level: the pairs where B is lower / same / higher, never a mean difference
+            parts.append(f"<tr data-score='{key}'><td class='l'>{key}</td><td>{d['pairs']}</td>"
+                         f"<td>median {_fmt(d['median_a'])}</td><td>median {_fmt(d['median_b'])}</td>"
+                         f"<td class='l' colspan=2>B lower in {d['b_lower']}, same {d['same']}, higher "
+                         f"{d['b_higher']} (sign test p = {d['sign_test_p']})</td></tr>")  # fmt: skip
             continue
         parts.append(f"<tr data-score='{key}'><td class='l'>{key}</td><td>{d['pairs']}</td>"
                      f"<td>{_fmt(d['mean_a'])}</td><td>{_fmt(d['mean_b'])}</td><td>{_fmt(d['mean_diff_b_minus_a'])}"

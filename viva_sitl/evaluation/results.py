@@ -159,9 +159,11 @@ def finished_trials(out_dir: Path) -> list[int]:
     return sorted(int(d.name) for d in dirs if d.name.isdigit() and (d / "result.json").is_file())
 
 
-def load_finished(out_dir: Path, scenarios: list[Scenario], pilot: str) -> dict[int, Row]:
+def load_finished(
+    out_dir: Path, scenarios: list[Scenario], pilot: str, *, keep_infra: bool = False
+) -> dict[int, Row]:
     """Rows already on disk whose scenario and pilot match (for --resume); infrastructure errors are left out, so
-    --resume runs those trials again."""
+    --resume runs those trials again (keep_infra: kept, for trials this run does not run again)."""
     out: dict[int, Row] = {}
     for sc in scenarios:
         d = trial_dir(out_dir, sc.index)
@@ -170,7 +172,11 @@ def load_finished(out_dir: Path, scenarios: list[Scenario], pilot: str) -> dict[
         except (FileNotFoundError, json.JSONDecodeError):
             continue
         row = res.get("row", {})
-        if res.get("scenario") == sc.to_dict() and row.get("pilot") == pilot and not is_infra(row):
+        if (
+            res.get("scenario") == sc.to_dict()
+            and row.get("pilot") == pilot
+            and (keep_infra or not is_infra(row))
+        ):
             out[sc.index] = row
     return out
 

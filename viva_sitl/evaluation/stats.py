@@ -167,6 +167,9 @@ def paired(rows_a: list[dict[str, Any]], rows_b: list[dict[str, Any]]) -> dict[s
         if not pairs:
             out["scores"][key] = {"pairs": 0}
             continue
+        if key in ORDINAL_COLUMNS:  # levels, not quantities: how many pairs B ranks lower / same / higher
+            out["scores"][key] = paired_ordinal(pairs)
+            continue
         d = np.array([float(y) - float(x) for x, y in pairs])
         lo, hi = bootstrap_ci(d)
         out["scores"][key] = {
@@ -174,6 +177,32 @@ def paired(rows_a: list[dict[str, Any]], rows_b: list[dict[str, Any]]) -> dict[s
             "mean_b": _r(float(np.mean([p[1] for p in pairs]))), "mean_diff_b_minus_a": _r(float(d.mean())),
             "diff_ci95": [_r(lo), _r(hi)],
         }  # fmt: skip
+    return out
+
+
+def paired_ordinal(pairs: list[tuple[Any, Any]]) -> dict[str, Any]:
+    """An ordinal score (risk level) over pairs (A, B): a difference of levels has no unit, so no mean: the pairs
+    where B is lower / the same / higher than A, each side's median, and the exact two-sided sign test on the
+    pairs that differ (the binomial test McNemar's is)."""
+    lower = sum(1 for x, y in pairs if float(y) < float(x))
+    higher = sum(1 for x, y in pairs if float(y) > float(x))
+    return {
+        "pairs": len(pairs), "ordinal": True, "b_lower": lower, "same": len(pairs) - lower - higher,
+        "b_higher": higher, "median_a": _r(float(np.median([float(p[0]) for p in pairs]))),
+        "median_b": _r(float(np.median([float(p[1]) for p in pairs]))), "sign_test_p": _r(mcnemar_exact(lower, higher), 6),
+    }  # fmt: skip
+
+
+def holm(pvalues: list[float]) -> list[float]:
+    """Holm-Bonferroni adjusted p-values (step-down; same order as given): controls the family-wise error rate
+    over the m tests without assuming them independent."""
+    m = len(pvalues)
+    order = sorted(range(m), key=lambda i: pvalues[i])
+    out = [1.0] * m
+    running = 0.0
+    for rank, i in enumerate(order):
+        running = max(running, min(1.0, (m - rank) * pvalues[i]))
+        out[i] = running
     return out
 
 
