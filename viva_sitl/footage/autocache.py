@@ -236,6 +236,7 @@ def ensure_cache(path: Path, frames: object, frame_count: int, size_px: tuple[in
         except FootageError:
             pass  # checked again under the lock (another process may be replacing it)
     with _locked(root / f"{key}.lock", what):
+        rebuilding = False
         if folder.is_dir():
             try:
                 verify(folder).close()
@@ -244,8 +245,14 @@ def ensure_cache(path: Path, frames: object, frame_count: int, size_px: tuple[in
             except FootageError as exc:
                 log.warning("tile cache of %s is corrupt (%s): rebuilding it", what, str(exc).split("; ")[0])
                 shutil.rmtree(folder, ignore_errors=True)
+                rebuilding = True
         partial = root / f"{key}.partial"
         w, h = size_px
+        (log.info if rebuilding else log.warning)(
+            "footage %s is %dx%d: building its tile cache once (%d frames, about %.1f GiB at ~1 byte per pixel) in "
+            "%s; later runs reuse it (--no-cache: read the video instead)", what, w, h, frame_count,
+            frame_count * w * h / 2**30, root,
+        )  # fmt: skip
         t0 = time.monotonic()
         try:
             assert callable(frames)
