@@ -6,8 +6,10 @@
 
 steps   The bench_core.py "full step" (1/30 s of 250 Hz physics + the footage frame for that time + a 640x480 VAC
         view) over the 4K bench clip, interleaved in rounds with the reference (`DroneEnv.step`, its own
-        interpreter, same clip, same pose): ours over the video (region path, the default), over a jpeg tile cache
-        and over a raw tile cache (`viva-sitl footage ingest --tiles`). Median steps/s and ratios.
+        interpreter, same clip, same pose): ours by the default path (the clip by path: the automatic yuv420z tile
+        cache, viva_sitl.footage.autocache, built once before the rounds), over the video itself (--no-cache),
+        over a jpeg tile cache and over a raw tile cache (`viva-sitl footage ingest --tiles`). Median steps/s
+        and ratios.
 scale   The same full step over the same ground (the interchange clip at 1080p, 4K and 8K, recording altitude 471 m)
         from tile caches and from the videos: ms per step, 8K / 1080p ratio.
 mem     Peak RSS (VmHWM) of a child process flying 300 steps over the 8K tile cache, with the decoded-tile LRU cap.
@@ -71,17 +73,43 @@ def loadavg() -> str:
     return " ".join(f"{v:.2f}" for v in os.getloadavg())
 
 
+def _ours(clip: Path, a: argparse.Namespace, policy: Any) -> core.Ours:
+    """core.Ours over `clip` opened under the automatic-cache policy `policy` (viva_sitl.footage.autocache)."""
+    from viva_sitl.footage import autocache
+
+    before = autocache.policy()
+    autocache.set_policy(policy)
+    try:
+        return core.Ours(clip, a, paper=False, render=True)
+    finally:
+        autocache.set_policy(before)
+
+
 def bench_steps(args: argparse.Namespace, clip: Path) -> dict[str, Any]:
+    from viva_sitl.footage import autocache
+
     tiles = {c: make_tiles(clip, c) for c in ("jpeg", "raw")}
+    # the default path of a fresh install: the clip by path, the automatic cache (default settings; only its
+    # folder is the bench's, not ~/.cache), built here once before the timed rounds
+    auto = autocache.CachePolicy(root=args.cache_dir / "tiles-auto", show_progress=False)
+    no_cache = autocache.CachePolicy(enabled=False)
+    t0 = time.perf_counter()
+    _ours(clip, replace_ns(args, z=args.z[0]), auto).sim.close()
+    build_s = time.perf_counter() - t0
+    (entry,) = [e for e in autocache.list_caches(auto.directory()) if e.source == str(clip.resolve())]
     out: dict[str, Any] = {
-        "disk_mib": {"video": clip.stat().st_size / 2**20, **{c: disk_mib(p) for c, p in tiles.items()}}
-    }
+        "disk_mib": {"video": clip.stat().st_size / 2**20, **{c: disk_mib(p) for c, p in tiles.items()},
+                     "auto_yuv420z": entry.bytes / 2**20},
+        "auto_cache": {"mib_per_frame": entry.bytes / 2**20 / entry.frames, "frames": entry.frames,
+                       "open_or_build_s": build_s, "folder": str(entry.folder)},
+    }  # fmt: skip
     for z in args.z:
         a = replace_ns(args, z=z)
         why = None if args.no_ref else core.reference_available(args.ref_python)
         ref = core.Reference(args.ref_python, clip, a) if why is None else None
         variants = {
-            "ours_video": core.Ours(clip, a, paper=False, render=True),
+            "ours_default_auto_cache": _ours(clip, a, auto),
+            "ours_video_no_cache": _ours(clip, a, no_cache),
             "ours_tiles_jpeg": core.Ours(tiles["jpeg"], a, paper=False, render=True),
             "ours_tiles_raw": core.Ours(tiles["raw"], a, paper=False, render=True),
         }
@@ -255,6 +283,10 @@ def to_markdown(res: dict[str, Any]) -> str:
     st = res.get("steps")
     if st:
         lines += [f"disk: {json.dumps({k: round(v, 1) for k, v in st['disk_mib'].items()})} MiB", ""]
+        if "auto_cache" in st:
+            ac = st["auto_cache"]
+            lines += [f"automatic cache (yuv420z): {ac['mib_per_frame']:.2f} MiB per frame, {ac['frames']} frames, "
+                      f"first open (build) {ac['open_or_build_s']:.1f} s", ""]  # fmt: skip
         lines += [
             "| z | variant | median steps/s | ratio to ref | median CPU ms/step | CPU ratio (ref / ours) "
             "| load avg (per round) |",
@@ -343,6 +375,10 @@ def main() -> int:
     core.add_tile_cache_arg(ap)  # steps and scale; mem sets its own caps
     args = ap.parse_args()
     core.apply_tile_cache(ap, args)
+    from viva_sitl.footage import autocache
+
+    # "video" variants read the video: the automatic cache only where a variant names it (`_ours`)
+    autocache.set_policy(autocache.CachePolicy(enabled=False))
     if args.child_mem:
         child_mem(args.child_mem, args.cap_mib)
         return 0

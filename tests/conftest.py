@@ -134,3 +134,19 @@ def vehicle_factory(client: MavClient) -> Iterator[Callable[..., VehicleThread]]
     yield start
     for vt in started:
         vt.stop()
+
+
+@pytest.fixture(autouse=True, scope="session")
+def _automatic_tile_caches_in_a_temporary_folder(
+    tmp_path_factory: pytest.TempPathFactory,
+) -> Iterator[None]:
+    """Heavy (>= 4K) test videos opened in the test process get their automatic tile cache (viva_sitl.footage.
+    autocache) in a temporary folder, not in the user's ~/.cache."""
+    from viva_sitl.footage import autocache
+
+    before = autocache.policy()
+    autocache.set_policy(
+        autocache.CachePolicy(root=tmp_path_factory.mktemp("tiles-auto"), show_progress=False)
+    )
+    yield
+    autocache.set_policy(before)

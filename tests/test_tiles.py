@@ -56,7 +56,7 @@ def clip(tmp_path_factory: pytest.TempPathFactory) -> Path:
 def caches(clip: Path, tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     d = tmp_path_factory.mktemp("caches")
     out = {}
-    for codec in ("png", "raw", "jpeg"):
+    for codec in ("png", "raw", "jpeg", "yuv420z"):
         res = ingest_tiles(
             str(clip.with_suffix(".toml")), out_dir=d / codec, codec=codec, show_progress=False
         )
@@ -127,6 +127,32 @@ def test_jpeg_tiles_render_within_the_stated_psnr(clip: Path, caches: dict[str, 
     worst, _, _ = _compare(clip, caches["jpeg"], cam)
     print(f"jpeg q95 tiles: worst render PSNR {worst:.1f} dB vs the video")
     assert worst >= JPEG_MIN_PSNR_DB
+
+
+def test_yuv420z_tiles_render_within_the_stated_psnr_and_decode_each_level(
+    clip: Path, caches: dict[str, Path]
+) -> None:
+    """The automatic cache's codec: level 0 as zstd YUV 4:2:0, coarser levels as jpeg 4:4:4; every level's tiles
+    decode to the right size and the renders (levels 0..3 and blends) stay within the jpeg bound."""
+    cam = CameraParams(width_px=200, height_px=150, hfov_deg=HFOV)
+    worst, levels, _ = _compare(clip, caches["yuv420z"], cam)
+    print(f"yuv420z tiles: worst render PSNR {worst:.1f} dB vs the video")
+    assert worst >= JPEG_MIN_PSNR_DB
+    assert {0, 1, 2, 3} <= levels
+    video = open_footage(str(clip), altitude_m=ALT_M, hfov_deg=HFOV)
+    tiled = open_footage(str(caches["yuv420z"]))
+    try:
+        assert isinstance(tiled, TileSource) and tiled.cache.codec == "yuv420z"
+        # level 0 alone (the 4:2:0 part) against the decoded video frame: the frame came from 4:2:0 H.264
+        for i in (0, FRAMES - 1):
+            assert _psnr(tiled.frame(i), video.frame(i)) >= JPEG_MIN_PSNR_DB
+        # odd level sizes (1280x720 -> ... 5x3 -> 3x2 -> 2x1 -> 1x1) round-trip through the padding
+        for level in range(tiled.level_count):
+            w, h = tiled.level_size_px(level) or (0, 0)
+            assert tiled.frame(1, level).shape == (h, w, 3)
+    finally:
+        video.close()
+        tiled.close()
 
 
 def test_tile_source_frames_equal_the_video_and_the_lru_is_capped(

@@ -128,6 +128,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     run.add_argument("--no-dashboard", action="store_true", help="do not serve the web dashboard")
 
+    add_cache_args(run)
     replay = sub.add_parser(
         "replay",
         help="replay a recorded run (trajectory.csv, telemetry.tlog or a trial's trial_trajectory.csv) in the web "
@@ -164,6 +165,7 @@ def build_parser() -> argparse.ArgumentParser:
     render.add_argument("-o", "--output", required=True, help="output image (png/jpg)")
     _footage_scale_flags(render)
 
+    add_cache_args(render)
     footage = sub.add_parser(
         "footage",
         help="footage catalog and ground truth: list | info | get | ingest | show | annotate",
@@ -226,6 +228,33 @@ def _cmd_render(args: argparse.Namespace) -> int:
     return 0
 
 
+def add_cache_args(p: argparse.ArgumentParser) -> None:
+    """`--no-cache` / `--cache-max-gb` / `--cache-dir`: the automatic tile cache of heavy (>= ~4K) footage
+    (viva_sitl.footage.autocache)."""
+    g = p.add_argument_group("automatic tile cache of >= 4K footage")
+    g.add_argument(
+        "--no-cache", action="store_true", help="read heavy footage from the video, build no tile cache"
+    )
+    g.add_argument(
+        "--cache-max-gb", type=positive_float, default=32.0,
+        help="size bound of all automatic tile caches together; least recently used caches are removed "
+        "(default 32; ~7-9 MiB per 4K frame, ~14 GB per minute of 30 fps 4K)",
+    )  # fmt: skip
+    g.add_argument(
+        "--tile-cache-dir", type=Path, help="where they go (default $XDG_CACHE_HOME/viva-sitl/tiles-auto)"
+    )
+
+
+def apply_cache_args(args: argparse.Namespace) -> None:
+    from viva_sitl.footage.autocache import CachePolicy, set_policy
+
+    set_policy(
+        CachePolicy(
+            enabled=not args.no_cache, max_bytes=int(args.cache_max_gb * 2**30), root=args.tile_cache_dir
+        )
+    )
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     if argv[:1] == ["footage"]:  # the catalog has its own parser (and its own --help)
@@ -254,6 +283,8 @@ def main(argv: list[str] | None = None) -> int:
             pass
 
     try:
+        if args.command in ("render", "run"):
+            apply_cache_args(args)
         if args.command == "render":
             return _cmd_render(args)
         if args.command == "footage":

@@ -17,6 +17,7 @@ import math
 from pathlib import Path
 from typing import Any
 
+from viva_sitl.footage import autocache
 from viva_sitl.footage.errors import FootageError
 from viva_sitl.footage.exif import read_photo_scale
 from viva_sitl.footage.geometry import FootageGeometry, corners_fit
@@ -325,8 +326,12 @@ def open_footage(
     gsd_m_per_px: float | None = None,
     heading_deg: float | None = None,
     fps: float | None = None,
+    cache: autocache.CachePolicy | None = None,
 ) -> FootageSource:
     """Open footage by catalog name or path (None/"synthetic": the built-in synthetic calibration field).
+
+    A heavy video (>= ~4K) is served from its automatic tile cache, built the first time (`cache`: the policy,
+    None = the process's, `autocache.set_policy`; see viva_sitl.footage.autocache).
 
     Raises FootageError (a ValueError) with one clear message for anything unusable; nothing is left open then.
     """
@@ -347,4 +352,27 @@ def open_footage(
         log.info(
             "footage %s: explicit gsd_m_per_px %.4f overrides the corners' scale", meta.name, gsd_m_per_px
         )
-    return _build(meta)
+    src = _build(meta)
+    if isinstance(src, VideoSource):
+        return _auto_cached(src, meta, cache or autocache.policy())
+    return src
+
+
+def _auto_cached(src: VideoSource, meta: FootageMetadata, policy: autocache.CachePolicy) -> FootageSource:
+    """`src` itself, or (heavy footage, cache enabled) the same footage from its automatic tile cache."""
+    w, h = src.frame_size_px
+    if not policy.enabled or w * h < policy.min_pixels:
+        return src
+    n = src.frame_count
+    try:
+        folder = autocache.ensure_cache(
+            Path(meta.path), lambda: (src.frame(i) for i in range(n)), n, (w, h), src.fps, policy, meta.name
+        )
+    except BaseException:
+        src.close()
+        raise
+    if folder is None:
+        return src
+    geometry, metadata = src.geometry, src.metadata
+    src.close()
+    return TileSource(metadata, folder, lambda w, h: geometry)

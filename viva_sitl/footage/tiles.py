@@ -19,7 +19,9 @@ Layout of a cache folder (built by `viva-sitl footage ingest --tiles`, see `buil
 
 Codecs: "jpeg" (cv2.imencode, quality 95 by default: ~46 dB PSNR per tile on the interchange clip, ~19 KiB per
 256 px tile), "png" (lossless: renders bit-identical to those from the decoded video, ~4x bigger, ~3x slower to
-decode) and "raw" (uncompressed BGR: bit-identical and the cheapest decode, a memory copy; ~10x bigger than jpeg).
+decode), "raw" (uncompressed BGR: bit-identical and the cheapest decode, a memory copy; ~10x bigger than jpeg) and
+"yuv420z" (the automatic cache's: level 0 as zstd-compressed planar YUV 4:2:0, ~47 dB and ~4x faster to decode
+than jpeg, coarser levels as jpeg 4:4:4; ~0.7-1.0 byte per footage pixel, see `_encode`).
 Every tile read checks its length and checksum and the decoded shape; any mismatch, a missing pack or level, or a bad
 index raises a one-line `FootageError` naming the cache and the command that rebuilds it: never a wrong image.
 
@@ -62,7 +64,8 @@ TILES_SUBDIR = "tiles"
 FORMAT_VERSION = 2
 DEFAULT_TILE_PX = 256
 DEFAULT_CODEC = "jpeg"
-CODECS = ("jpeg", "png", "raw")
+CODECS = ("jpeg", "png", "raw", "yuv420z")
+AUTO_CODEC = "yuv420z"  # the automatic cache's codec (viva_sitl.footage.autocache)
 DEFAULT_JPEG_QUALITY = 95
 # qualities tried, best first, when the size bound would be exceeded at the asked one
 JPEG_FALLBACK_QUALITIES = (95, 92, 90, 85, 80, 75, 70, 60, 50)
@@ -75,6 +78,8 @@ INDEX_DTYPE_V1 = np.dtype(
 )
 _MASK64 = (1 << 64) - 1
 _RAW_MAGIC = b"RAWT"
+_YUVZ_MAGIC = b"Y4Z1"
+YUVZ_LEVEL = 3  # zstd level of the yuv420z codec's level-0 tiles (decode speed does not depend on it)
 # full-resolution chroma: 4:2:0 costs 4-7 dB on sharp coarse levels (bench/results_tiles.md) for ~30 % less size
 _JPEG_444 = (cv2.IMWRITE_JPEG_SAMPLING_FACTOR, cv2.IMWRITE_JPEG_SAMPLING_FACTOR_444)
 
@@ -175,10 +180,55 @@ FORMATS: dict[int, tuple[np.dtype[Any], Callable[[bytes], int]]] = {
 }
 
 
-def _encode(tile: U8, codec: str, quality: int) -> bytes:
+def _encode_yuvz(tile: U8) -> bytes:
+    """A BGR tile as planar YUV 4:2:0 (I420, OpenCV's BT.601 conversion) compressed with zstd; an odd width or
+    height is padded by repeating the last column/row (the header keeps the true size)."""
+    import zstandard
+
+    h, w = tile.shape[:2]
+    even = tile
+    if w % 2 or h % 2:
+        even = np.asarray(cv2.copyMakeBorder(tile, 0, h % 2, 0, w % 2, cv2.BORDER_REPLICATE), np.uint8)
+    yuv = cv2.cvtColor(even, cv2.COLOR_BGR2YUV_I420)
+    body = zstandard.ZstdCompressor(level=YUVZ_LEVEL).compress(yuv.tobytes())
+    return _YUVZ_MAGIC + int(w).to_bytes(2, "little") + int(h).to_bytes(2, "little") + body
+
+
+_zstd_local = threading.local()
+
+
+def _decode_yuvz(data: bytes | memoryview) -> U8 | None:
+    import zstandard
+
+    if len(data) < 8 or bytes(data[:4]) != _YUVZ_MAGIC:
+        return None
+    w = int.from_bytes(data[4:6], "little")
+    h = int.from_bytes(data[6:8], "little")
+    ew, eh = w + w % 2, h + h % 2
+    dec = getattr(_zstd_local, "dec", None)
+    if dec is None:  # a decompression context is not thread-safe: one per decode thread
+        dec = _zstd_local.dec = zstandard.ZstdDecompressor()
+    try:
+        raw = dec.decompress(data[8:], max_output_size=ew * eh * 3 // 2)
+    except zstandard.ZstdError:
+        return None
+    if len(raw) != ew * eh * 3 // 2:
+        return None
+    bgr = cv2.cvtColor(np.frombuffer(raw, np.uint8).reshape(eh * 3 // 2, ew), cv2.COLOR_YUV2BGR_I420)
+    return np.asarray(bgr if (ew, eh) == (w, h) else bgr[:h, :w], dtype=np.uint8)
+
+
+def _encode(tile: U8, codec: str, quality: int, level: int = 0) -> bytes:
+    """One tile's bytes. "yuv420z" is two codecs by level: level 0 as zstd-compressed YUV 4:2:0 (the video's own
+    chroma resolution: ~47 dB, decoded ~4x faster than a JPEG), coarser levels as JPEG 4:4:4 (4:2:0 there costs
+    5-10 dB: a box-halved level has full-resolution chroma again; bench/results_tiles.md, session 10)."""
     if codec == "raw":
         h, w = tile.shape[:2]
         return _RAW_MAGIC + int(w).to_bytes(2, "little") + int(h).to_bytes(2, "little") + tile.tobytes()
+    if codec == "yuv420z":
+        if level == 0:
+            return _encode_yuvz(tile)
+        codec = "jpeg"
     if codec == "jpeg":
         ok, buf = cv2.imencode(".jpg", tile, [cv2.IMWRITE_JPEG_QUALITY, quality, *_JPEG_444])
     else:
@@ -197,6 +247,8 @@ def _decode(data: bytes | memoryview, codec: str) -> U8 | None:
         if len(data) != 8 + w * h * 3:
             return None
         return np.frombuffer(data, np.uint8, offset=8).reshape(h, w, 3)
+    if codec == "yuv420z" and bytes(data[:4]) == _YUVZ_MAGIC:
+        return _decode_yuvz(data)
     img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
     return None if img is None else np.asarray(img, dtype=np.uint8)
 
@@ -213,16 +265,16 @@ def encode_frame(
     frame_bgr: U8, layout: TileLayout, codec: str, quality: int, pool: ThreadPoolExecutor | None = None
 ) -> list[bytes]:
     """The encoded tiles of one frame, in index order (level by level, row by row)."""
-    jobs: list[U8] = []
+    jobs: list[tuple[U8, int]] = []
     t = layout.tile_px
     for level, img in enumerate(frame_pyramid(frame_bgr)):
         nx, ny = layout.grid[level]
         for ty in range(ny):
             for tx in range(nx):
-                jobs.append(np.ascontiguousarray(img[ty * t : (ty + 1) * t, tx * t : (tx + 1) * t]))
+                jobs.append((np.ascontiguousarray(img[ty * t : (ty + 1) * t, tx * t : (tx + 1) * t]), level))
     if pool is None:
-        return [_encode(j, codec, quality) for j in jobs]
-    return list(pool.map(lambda j: _encode(j, codec, quality), jobs))
+        return [_encode(j, codec, quality, lv) for j, lv in jobs]
+    return list(pool.map(lambda j: _encode(j[0], codec, quality, j[1]), jobs))
 
 
 # ------------------------------------------------------------------------------------------------ reading
@@ -647,7 +699,7 @@ def build_tiles(
 
     if codec not in CODECS:
         raise FootageError(f"tile codec must be one of {', '.join(CODECS)}, got {codec!r}")
-    if codec == "jpeg" and not 1 <= quality <= 100:
+    if codec in ("jpeg", "yuv420z") and not 1 <= quality <= 100:
         raise FootageError(f"tile quality must be 1..100, got {quality}")
     if frame_count <= 0:
         raise FootageError("no frames to tile")
