@@ -146,8 +146,10 @@ class SitlApp:
     def camera(self) -> SitlApp | None:
         return self if self.scheduler is not None else None
 
-    def _render_tick(self, tick: int) -> RenderedFrame:
+    def _render_tick(self, tick: int) -> RenderedFrame | None:
         """Render thread: the VAC at the latest (frozen) state; wall time = when that state was produced."""
+        if self.vehicle.camera_dropped:  # an injected camera failure (OFF): no frame to any output
+            return None
         frame = self.vehicle.render(self.sim.state, wall_time_s=self.state_wall_time_s)  # gimbal applied
         self.last_frame = frame
         return frame
