@@ -94,7 +94,7 @@ def test_gps_off_loses_the_position_then_descends_and_ok_restores() -> None:
         z0 = float(v.state.pos_ned_m[2])
         events = run(v, 1.0)
         assert not ap.global_position_valid and ap.mode is FlightMode.AUTO_LAND  # Descend reports AUTO.LAND
-        assert (Severity.WARNING, "Failsafe activated (no global position): switching to Descend") in events
+        assert (Severity.WARNING, "Failsafe activated (no GPS): switching to Descend") in events
         # position modes are refused while lost (TEMPORARILY_REJECTED, as PX4 Commander)
         for refused in (
             ap.set_mode(v.time_s, FlightMode.AUTO_LOITER),

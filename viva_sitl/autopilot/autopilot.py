@@ -351,11 +351,11 @@ class Autopilot:
             in_air = ctx.armed and not ctx.on_ground
             if in_air and ctx.mode == FlightMode.POSCTL and self.tasks.manual.fresh(now_s):
                 self.tasks.enter(FlightMode.ALTCTL, now_s)
-                ctx.event(Severity.WARNING, "Failsafe activated (no global position): switching to Altitude")
+                ctx.event(Severity.WARNING, "Failsafe activated (no GPS): switching to Altitude")
             elif in_air and ctx.mode in POSITION_MODES:
                 self._nav_fallback_from = ctx.mode
                 self.tasks.enter(FlightMode.AUTO_LAND, now_s)
-                ctx.event(Severity.WARNING, "Failsafe activated (no global position): switching to Descend")
+                ctx.event(Severity.WARNING, "Failsafe activated (no GPS): switching to Descend")
             else:
                 ctx.event(Severity.CRITICAL, "Global position estimate invalid (GPS lost)")
         elif not lost and not ctx.position_valid:
