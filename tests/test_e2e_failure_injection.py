@@ -9,10 +9,11 @@ from __future__ import annotations
 import asyncio
 import time
 from collections.abc import Callable
+from typing import Any
 
 import pytest
 from pymavlink.dialects.v20 import common as mavlink2
-from sitl_process import MavlinkPeer, SitlProcess
+from sitl_process import MavlinkPeer, SitlProcess, free_udp_ports
 
 pytestmark = pytest.mark.e2e
 
@@ -82,7 +83,7 @@ def test_mavsdk_gps_off_in_flight_descends_and_ok_restores(
 
     async def until(stream: object, pred: Callable[[object], bool], timeout_s: float) -> object:
         async with asyncio.timeout(timeout_s):
-            async for item in stream:  # type: ignore[attr-defined]
+            async for item in stream:
                 if pred(item):
                     return item
         raise AssertionError("unreachable")
@@ -129,3 +130,45 @@ def test_mavsdk_gps_off_in_flight_descends_and_ok_restores(
             peer.wait("GPS_RAW_INT", lambda m: m.fix_type == 3, 5.0, since_s=t1)
 
     asyncio.run(scenario())
+
+
+CAMERA = 200  # viva-sitl's FAILURE_UNIT extension: the VAC (MAVLink has no camera unit)
+WRONG = 4  # FAILURE_TYPE_WRONG: black frames (STUCK, frozen, is checked in test_failure_injection.py)
+
+
+@pytest.mark.slow  # a viva-sitl process streaming video
+def test_camera_failure_blacks_out_and_drops_frame_socket_frames(
+    sitl_factory: Callable[..., SitlProcess], peer_factory: Callable[[int], MavlinkPeer]
+) -> None:
+    """A camera failure over MAVLink reaches the frame socket (and the RTP outputs, fed by the same render step):
+    WRONG -> black frames with the pose still in their metadata, OFF -> no frames at all, OK -> live frames."""
+    from viva_sitl.video.frame_socket import FrameClient
+
+    (video_port,) = free_udp_ports(1)
+    sitl = sitl_factory(video_port=video_port)
+    peer = peer_factory(sitl.ports.gcs)
+    peer.wait_autopilot()
+    assert peer.set_param_int("SYS_FAILURE_EN", 1) == 1
+    with FrameClient(f"tcp://127.0.0.1:{sitl.frame_socket_port}", latest_only=True) as client:
+
+        def next_frame(after_s: float) -> tuple[Any, dict[str, Any]]:
+            deadline = time.monotonic() + 10.0
+            while time.monotonic() < deadline:
+                item = client.receive(timeout_s=1.0)
+                if item is not None and time.monotonic() > after_s:
+                    return item
+            raise AssertionError("no frame on the frame socket")
+
+        live, _ = next_frame(0.0)
+        assert live.any(), "the live VAC frame is all black"
+        assert peer.command_long(INJECT, (CAMERA, WRONG, 0)).result == mavlink2.MAV_RESULT_ACCEPTED
+        black, meta = next_frame(time.monotonic() + 0.3)
+        assert not black.any() and "pos_ned_m" in meta
+        assert peer.command_long(INJECT, (CAMERA, OFF, 0)).result == mavlink2.MAV_RESULT_ACCEPTED
+        t_off = time.monotonic()
+        while time.monotonic() < t_off + 0.5:  # frames already on their way
+            client.receive(timeout_s=0.1)
+        assert client.receive(timeout_s=1.5) is None, "frames still delivered while the camera is off"
+        assert peer.command_long(INJECT, (CAMERA, OK, 0)).result == mavlink2.MAV_RESULT_ACCEPTED
+        back, _ = next_frame(time.monotonic())
+        assert back.any()
