@@ -4,7 +4,9 @@ consequence, its acknowledgement (ACCEPTED / UNSUPPORTED / DENIED) and FAILURE_T
 
 from __future__ import annotations
 
+import json
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -230,3 +232,39 @@ def test_every_trial_failure_kind_is_a_supported_injection(kind: str) -> None:
             v.time_s, unit, ftype, FAILURE_INSTANCE.get(kind, 0), check_enabled=False
         )
         assert out.ok, (kind, out)
+
+
+class BlackoutWatcher:
+    """An in-process vision pilot that only looks: records (t, frame all black) for every frame it is given."""
+
+    name, control_hz, frame_hz, uses_ground_truth = "blackout-watcher", 10.0, 10.0, False
+    seen: list[tuple[float, bool]] = []
+
+    def reset(self, scenario: object, truth: object) -> None:
+        BlackoutWatcher.seen = []
+
+    def act(self, obs, ctl):  # type: ignore[no-untyped-def]
+        BlackoutWatcher.seen.append((obs.t_s, not obs.frame.image_bgr.any()))
+
+
+def test_trial_spec_failures_gps_loss_and_camera_blackout(tmp_path: Path) -> None:
+    """A spec's gps_loss and camera_blackout go through Autopilot.inject_failure: PX4's Descend failsafe follows
+    the lost GPS, and the pilot's frames turn black from the blackout on."""
+    from viva_sitl.evaluation.runner import run_inprocess_trial
+    from viva_sitl.evaluation.spec import draw_scenarios, spec_from_dict
+
+    spec = spec_from_dict(
+        {"trials": {"name": "f", "n": 1, "seed": 1, "timeout_s": 9.0},
+         "scenario": {"footage": "synthetic", "start": "air", "north_m": [-5.0, 5.0], "east_m": [-5.0, 5.0],
+                      "altitude_m": 10.0, "land_at_s": 8.0,
+                      "failures": [{"kind": "gps_loss", "at_s": 1.0}, {"kind": "camera_blackout", "at_s": 2.0}]}},
+        "f",
+    )  # fmt: skip
+    run_inprocess_trial(spec, draw_scenarios(spec, 1)[0], f"{__name__}:BlackoutWatcher", tmp_path)
+    texts = [json.loads(x)["text"] for x in (tmp_path / "events.jsonl").read_text().splitlines()]
+    assert "injected: GPS lost" in texts and "injected: camera blackout" in texts, texts
+    assert "Failsafe activated (no GPS): switching to Descend" in texts, texts
+    seen = BlackoutWatcher.seen
+    assert (
+        seen and not any(black for t, black in seen if t < 1.9) and all(black for t, black in seen if t > 2.2)
+    )

@@ -17,7 +17,7 @@ What each supported failure does (PX4 SITL's consequence; where this vehicle sim
   to Altitude (COM_POSCTL_NAVL = 0), everything else to Descend (PX4's navigation state that reports AUTO.LAND: level,
   down at MPC_LAND_SPEED, drifting with the wind). OK: the position is valid again at once and a vehicle that was
   put into Descend by this failsafe returns to the mode it flew (PX4 clears a mode-fallback failsafe when its
-  condition clears).
+  condition clears). Simplified: Offboard keeps flying its setpoints on the true state (PX4 would also fall back).
 - SENSOR_BARO / SENSOR_MAG, OFF: SYS_STATUS health bit cleared, "Baro #0 fail: TIMEOUT!" / "Mag #0 fail: TIMEOUT!",
   arming refused. Simplified: in the air nothing else changes (PX4's EKF2 falls back to GNSS height and GNSS heading).
 - SENSOR_ACCEL / SENSOR_GYRO, OFF: health bit cleared, "Accel #0 fail: TIMEOUT!" / "Gyro #0 fail: TIMEOUT!",
