@@ -268,3 +268,19 @@ def test_trial_spec_failures_gps_loss_and_camera_blackout(tmp_path: Path) -> Non
     assert (
         seen and not any(black for t, black in seen if t < 1.9) and all(black for t, black in seen if t > 2.2)
     )
+
+
+def test_ulog_failsafe_flags_record_the_lost_position(tmp_path: Path) -> None:
+    """The run's ULog (flightlog.py) carries the lost global position in failsafe_flags, as PX4 logs it."""
+    pyulog = pytest.importorskip("pyulog")
+    from viva_sitl.flightlog import FlightLog
+
+    with air_vehicle(20.0) as v:
+        flog = FlightLog(tmp_path / "log.ulg", v.geo, v.params, start_time_s=v.time_s)
+        assert v.autopilot.inject_failure(v.time_s, U.SENSOR_GPS, T.OFF).ok
+        for _ in range(round((GPS_NOAID_TIMEOUT_S + 1.0) * HZ)):
+            flog.step(v.step(), v.autopilot)
+        flog.close()
+    flags = pyulog.ULog(str(tmp_path / "log.ulg")).get_dataset("failsafe_flags").data
+    invalid = flags["global_position_invalid"]
+    assert invalid[0] == 0 and invalid[-1] == 1 and flags["local_position_invalid"][-1] == 1
