@@ -63,23 +63,24 @@ def test_failure_injection_is_gated_acknowledged_and_reversible(
     peer.wait("SYS_STATUS", lambda m: m.battery_remaining > 90, 10.0, since_s=t1, what="battery back")
 
 
+@pytest.mark.slow  # ~8-10 s: a take-off, 5 s of dead reckoning, the failsafe and back
 def test_mavsdk_gps_off_in_flight_descends_and_ok_restores(
     sitl: SitlProcess, peer_factory: Callable[[int], MavlinkPeer]
 ) -> None:
-    """failure_injection.py's flow, checked: SYS_FAILURE_EN = 1, take off, inject GPS OFF through MAVSDK's failure
+    """failure_injection.py's flow, checked: SYS_FAILURE_EN = 1 through MAVSDK's param plugin while its failure
+    plugin already exists (it answered DISABLED before: a second PARAM_VALUE, as PX4's, updates it), take off, inject GPS OFF through MAVSDK's failure
     plugin -> GPS_RAW_INT fix 0, the GPS health bit cleared (MAVSDK: global position not OK), PX4's announcement,
     then after EKF2's dead-reckoning time GLOBAL_POSITION_INT stops and the Descend failsafe (AUTO.LAND) flies;
     Hold is refused meanwhile; FAILURE_TYPE_OK -> global position back and the vehicle back in Hold."""
     from mavsdk.asyncio import ComponentType, Configuration, Mavsdk
     from mavsdk.asyncio.plugins.action import ActionAsync
     from mavsdk.asyncio.plugins.failure import FailureAsync
+    from mavsdk.asyncio.plugins.param import ParamAsync
     from mavsdk.asyncio.plugins.telemetry import FlightMode, TelemetryAsync
-    from mavsdk.plugins.failure import FailureType, FailureUnit
+    from mavsdk.plugins.failure import FailureError, FailureResult, FailureType, FailureUnit
 
     peer = peer_factory(sitl.ports.gcs)
     peer.wait_autopilot()
-    # set before MAVSDK's failure plugin exists: the plugin reads SYS_FAILURE_EN once when it is created
-    assert peer.set_param_int("SYS_FAILURE_EN", 1) == 1
 
     async def until(stream: object, pred: Callable[[object], bool], timeout_s: float) -> object:
         async with asyncio.timeout(timeout_s):
@@ -95,6 +96,12 @@ def test_mavsdk_gps_off_in_flight_descends_and_ok_restores(
             assert system is not None, "no autopilot discovered"
             action, telemetry, failure = ActionAsync(system), TelemetryAsync(system), FailureAsync(system)
             await until(telemetry.subscribe_health(), lambda h: h.is_global_position_ok, 30.0)
+            # the example's order: the failure plugin exists (it read SYS_FAILURE_EN = 0) before the param plugin
+            # sets it; the plugin learns the change from PX4's second, unsolicited PARAM_VALUE
+            with pytest.raises(FailureError) as disabled:
+                await failure.inject(FailureUnit.SYSTEM_BATTERY, FailureType.OFF, 0)
+            assert disabled.value.result == FailureResult.DISABLED
+            await ParamAsync(system).set_param_int("SYS_FAILURE_EN", 1)
             await action.set_takeoff_altitude(10.0)
             await action.arm()
             await action.takeoff()
@@ -102,8 +109,9 @@ def test_mavsdk_gps_off_in_flight_descends_and_ok_restores(
             await until(telemetry.subscribe_flight_mode(), lambda m: m == FlightMode.HOLD, 30.0)
 
             t0 = time.monotonic()
-            # raises FailureError unless SUCCESS (MAVSDK: DISABLED when it read SYS_FAILURE_EN = 0)
-            await failure.inject(FailureUnit.SENSOR_GPS, FailureType.OFF, 0)
+            await failure.inject(
+                FailureUnit.SENSOR_GPS, FailureType.OFF, 0
+            )  # raises FailureError unless SUCCESS
             await until(telemetry.subscribe_health(), lambda h: not h.is_global_position_ok, 10.0)
             peer.wait(
                 "GPS_RAW_INT", lambda m: m.fix_type == 0 and m.satellites_visible == 0, 10.0, since_s=t0
