@@ -50,14 +50,15 @@ def test_inject_failure_is_gated_reversible_and_says_what_it_does_not_support() 
         out = ap.inject_failure(t, FailureUnit.SYSTEM_BATTERY, FailureType.OFF)
         assert out.result is CommandResult.DENIED and "SYS_FAILURE_EN" in out.reason  # PX4's gate
         v.params.set("SYS_FAILURE_EN", 1)
-        gps = ap.inject_failure(t, FailureUnit.SENSOR_GPS, FailureType.OFF)
-        assert gps.result is CommandResult.UNSUPPORTED and "SENSOR_GPS" in gps.reason
+        flow = ap.inject_failure(t, FailureUnit.SENSOR_OPTICAL_FLOW, FailureType.OFF)
+        assert flow.result is CommandResult.UNSUPPORTED and "SENSOR_OPTICAL_FLOW" in flow.reason
         assert ap.inject_failure(t, 77, 1).result is CommandResult.UNSUPPORTED  # no such unit
         full = ap.battery_remaining
         assert ap.inject_failure(t, FailureUnit.SYSTEM_BATTERY, FailureType.OFF).ok
         assert ap.battery_remaining == 0.0  # PX4's battery simulator: forced empty
         assert ap.inject_failure(t, FailureUnit.SYSTEM_BATTERY, FailureType.OK).ok
         assert ap.battery_remaining == full
+        ap.pop_events()  # "Injected: battery off, ..." / "Cleared: battery, ..." (PX4's announcements)
         ap.announce(Severity.ALERT, LAND_NOW_TEXT)
         assert [(e.severity, e.text) for e in ap.pop_events()] == [(Severity.ALERT, LAND_NOW_TEXT)]
 

@@ -241,7 +241,11 @@ def test_param_rejections_as_px4(client: MavClient, vehicle: VehicleThread) -> N
     pv = client.wait_for(lambda m: m.get_type() == "PARAM_VALUE" and m.param_id == "MIS_TAKEOFF_ALT", 1.0)
     assert pv is not None and pv.param_value == pytest.approx(1e6)
     client.send(client.mav.param_set_encode(1, 1, b"MIS_TAKEOFF_ALT", 2.5, M.MAV_PARAM_TYPE_REAL32))
-    pv = client.wait_for(lambda m: m.get_type() == "PARAM_VALUE" and m.param_id == "MIS_TAKEOFF_ALT", 1.0)
+    # (the 1e6 change is also re-announced ~5 ms later, as PX4's send_untransmitted: wait for the new value)
+    pv = client.wait_for(
+        lambda m: m.get_type() == "PARAM_VALUE" and m.param_id == "MIS_TAKEOFF_ALT" and m.param_value == 2.5,
+        1.0,
+    )
     assert pv is not None and pv.param_value == pytest.approx(2.5)
 
     # index beyond the list: no PARAM_VALUE, a STATUSTEXT

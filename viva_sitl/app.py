@@ -168,8 +168,10 @@ class SitlApp:
     def camera(self) -> SitlApp | None:
         return self if self.scheduler is not None else None
 
-    def _render_tick(self, tick: int) -> RenderedFrame:
+    def _render_tick(self, tick: int) -> RenderedFrame | None:
         """Render thread: the VAC at the latest (frozen) state; wall time = when that state was produced."""
+        if self.vehicle.camera_dropped:  # an injected camera failure (OFF): no frame to any output
+            return None
         frame = self.vehicle.render(self.sim.state, wall_time_s=self.state_wall_time_s)  # gimbal applied
         self.last_frame = frame
         return frame
@@ -314,7 +316,9 @@ class SitlApp:
                 if video is not None and self.sim.state.time_s + 1e-9 >= next_frame_t:
                     next_frame_t += frame_period
                     self.state_wall_time_s = time.time()
-                    video.submit(self._render_tick(tick))  # a frame at an exact sim time, not a wall tick
+                    frame = self._render_tick(tick)  # a frame at an exact sim time, not a wall tick
+                    if frame is not None:  # None: an injected camera failure drops it
+                        video.submit(frame)
                     tick += 1
             clock.mark_done(q_steps)
             self._after_batch()

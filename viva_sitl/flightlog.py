@@ -241,7 +241,7 @@ class FlightLog:
         mode = autopilot.mode
         flags = autopilot.commander.failsafe_flags  # a frozen dataclass, replaced when a flag changes
         offboard_lost = mode == FlightMode.OFFBOARD and not autopilot.tasks.offboard.fresh(now_s)
-        key = (armed, mode, bool(state.landed), id(flags), offboard_lost)
+        key = (armed, mode, bool(state.landed), id(flags), offboard_lost, autopilot.ctx.position_valid)
         if now_s < self._next_any_s and key == self._last_key:
             return  # the common step: nothing due, nothing changed (a few attribute reads)
         self._last_key = key
@@ -289,9 +289,10 @@ class FlightLog:
                 float(autopilot.battery_remaining), self._bat_warn, 0,
             ))  # fmt: skip
         bat_warn = self._bat_warn
+        no_pos = not autopilot.ctx.position_valid  # an injected GPS failure past the dead-reckoning time
         flag_values = (
             bool(flags.rc_lost_handled), bool(flags.dll_lost), offboard_lost,
-            bool(flags.fence_breached or flags.gf_outside), bat_warn, False, False, False,
+            bool(flags.fence_breached or flags.gf_outside), bat_warn, no_pos, no_pos, False,
         )  # fmt: skip
         failsafe = any(flag_values[:4]) or bat_warn >= 2
         status = (

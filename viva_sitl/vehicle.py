@@ -24,8 +24,10 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Literal
 
 import numpy as np
+from numpy.typing import NDArray
 
 from viva_sitl.autopilot import Autopilot, ParamStore
+from viva_sitl.autopilot.failures import FailureType
 from viva_sitl.camera import Mount
 from viva_sitl.config import SimConfig
 from viva_sitl.dynamics import EavCommand, EavParams, EavState
@@ -66,6 +68,9 @@ class Vehicle:
         self._mount_camera = (
             self.sim.camera
         )  # the camera as configured (a gimbal's angles are applied on top)
+        self._last_good_image: NDArray[np.uint8] | None = (
+            None  # a frozen camera (injected failure) repeats it
+        )
         self.params = params if params is not None else ParamStore()
         self.params.adopt("MAV_SYS_ID", self.config.mavlink.system_id)  # as PX4 SITL -i N
         for name, value in self.config.params:
@@ -116,6 +121,7 @@ class Vehicle:
         (disarmed on the ground, or armed in Hold for an air start) on the same parameters, as after a reboot. The
         autopilot has seen the initial state: arming is possible before the first step."""
         state = self.sim.reset(seed, pos_ned_m, yaw_rad, vel_ned_m_s)
+        self._last_good_image = None
         self.autopilot = self._new_autopilot()
         self.autopilot.start(state.time_s, state)
         self._sync_params()
@@ -185,9 +191,28 @@ class Vehicle:
 
     # --- camera --------------------------------------------------------------------------
     def render(self, state: EavState | None = None, wall_time_s: float | None = None) -> RenderedFrame:
-        """The VAC view; a `gimbal` mount first takes the angles the autopilot's gimbal items asked for."""
+        """The VAC view; a `gimbal` mount first takes the angles the autopilot's gimbal items asked for. An injected
+        camera failure (Autopilot.camera_fault) acts here, so every consumer sees it: STUCK repeats the last good
+        image (frozen), WRONG and OFF give black images; the metadata always tells the true pose. OFF also makes
+        `camera_dropped` True: the video path delivers no frame at all then."""
         self.apply_gimbal()
-        return self.sim.render(state, wall_time_s=wall_time_s)
+        frame = self.sim.render(state, wall_time_s=wall_time_s)
+        fault = self.autopilot.camera_fault
+        if fault is None:
+            self._last_good_image = frame.image_bgr
+            return frame
+        if fault is FailureType.STUCK and self._last_good_image is not None:
+            return RenderedFrame(self._last_good_image, frame.meta)
+        if fault is FailureType.STUCK:  # frozen before any good frame: nothing to repeat
+            self._last_good_image = frame.image_bgr
+            return frame
+        return RenderedFrame(np.zeros_like(frame.image_bgr), frame.meta)
+
+    @property
+    def camera_dropped(self) -> bool:
+        """An injected camera failure of type OFF: the camera delivers no frames (the app's render step sends
+        nothing to the video outputs and the frame socket)."""
+        return self.autopilot.camera_fault is FailureType.OFF
 
     def apply_gimbal(self) -> None:
         """Point a `gimbal` camera mount where the mission's gimbal items (DO_MOUNT_CONTROL,

@@ -50,10 +50,19 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from viva_sitl.autopilot.commander import Commander
+from viva_sitl.autopilot.commander import MODE_NAMES, POSITION_MODES, Commander
 from viva_sitl.autopilot.context import FlightContext, InsideFn
 from viva_sitl.autopilot.failsafe import battery_level, battery_warning
-from viva_sitl.autopilot.failures import Failures, FailureType, FailureUnit
+from viva_sitl.autopilot.failures import (
+    GPS_NOAID_TIMEOUT_S,
+    SENSOR_NAMES,
+    Failures,
+    FailureType,
+    FailureUnit,
+    describe,
+    motor_failure_command,
+    parse,
+)
 from viva_sitl.autopilot.geofence import Geofence, RallyPoint
 from viva_sitl.autopilot.gimbal import GimbalControl, GimbalMode, point_at
 from viva_sitl.autopilot.land_detector import LandDetector, Transition
@@ -63,6 +72,7 @@ from viva_sitl.autopilot.setpoints import MAX_ABS_POS_M
 from viva_sitl.autopilot.tasks import FlightTasks, OffboardKind, RtlPhase
 from viva_sitl.autopilot.tasks.follow import FollowTarget, TrackLookup
 from viva_sitl.autopilot.types import (
+    ACCEPTED,
     AttitudeTarget,
     CommandResult,
     Event,
@@ -102,6 +112,8 @@ class Autopilot:
             GimbalControl(gimbal_neutral_deg) if gimbal_neutral_deg is not None else None
         )
         self._gimbal_mission_seen: tuple[float, float] | None = None
+        self._gps_lost_s: float | None = None  # when an injected GPS failure began (None: GPS fine)
+        self._nav_fallback_from: FlightMode | None = None  # the mode a lost position made the vehicle leave
 
     def eav_params(self) -> EavParams:
         """The EAV parameters with SIM_* applied: the caller swaps it into the physics when it changes
@@ -149,6 +161,30 @@ class Autopilot:
     @property
     def battery_current_a(self) -> float:
         return self.ctx.battery.current_a
+
+    # --- injected failures, read by telemetry and the renderer (autopilot/failures.py) ---------
+    @property
+    def failed_health_bits(self) -> int:
+        """SYS_STATUS sensor bits an injected failure makes unhealthy (gyro 1, accel 2, mag 4, baro 8, GPS 32,
+        motor outputs 0x8000, RC 0x10000)."""
+        return self.failures.health_mask()
+
+    @property
+    def gps_fix(self) -> bool:
+        """The GPS receiver delivers a fix (False while an injected GPS failure is on: GPS_RAW_INT fix 0)."""
+        return not self.failures.is_active(FailureUnit.SENSOR_GPS)
+
+    @property
+    def global_position_valid(self) -> bool:
+        """The global position estimate is valid (False once a lost GPS is past EKF2's dead-reckoning time):
+        GLOBAL_POSITION_INT stops while False."""
+        return self.ctx.position_valid
+
+    @property
+    def camera_fault(self) -> FailureType | None:
+        """An injected camera failure (viva-sitl's FailureUnit.SENSOR_CAMERA): OFF no frames, STUCK frozen, WRONG
+        black; None: live frames."""
+        return self.failures.active.get(FailureUnit.SENSOR_CAMERA)
 
     def pop_events(self) -> list[Event]:  # STATUSTEXT / MISSION_ITEM_REACHED since the last call
         ev, self.ctx.events = self.ctx.events, []
@@ -282,6 +318,9 @@ class Autopilot:
         return self.tasks.offboard.set_attitude_target(now_s, target)
 
     def set_manual_input(self, now_s: float, manual: ManualInput) -> Outcome:
+        if self.failures.is_active(FailureUnit.SYSTEM_RC_SIGNAL):
+            # an injected RC failure: the receiver hears nothing
+            return Outcome(CommandResult.TEMPORARILY_REJECTED, "RC signal lost (injected failure)")
         return self.tasks.manual.set_input(now_s, manual)
 
     def set_follow_target(
@@ -327,11 +366,73 @@ class Autopilot:
         check_enabled: bool = True,
     ) -> Outcome:
         """PX4's MAV_CMD_INJECT_FAILURE (autopilot/failures.py says what each failure does). Refused (DENIED)
-        unless SYS_FAILURE_EN = 1 when `check_enabled`; the simulator's own scenario failures pass False."""
-        del now_s  # every supported failure acts from the next control step on
-        return self.failures.inject(
+        unless SYS_FAILURE_EN = 1 when `check_enabled`; the simulator's own scenario failures pass False.
+        Accepted: announced as PX4 does (WARNING "Injected: ..."), acting from the next control step on."""
+        out = self.failures.inject(
             unit, ftype, instance, self.ctx.params, self.ctx.battery, check_enabled=check_enabled
         )
+        if not out.ok:
+            return out
+        parsed = parse(unit, ftype, instance)
+        assert not isinstance(parsed, Outcome)  # inject accepted it
+        u, t, inst = parsed
+        ctx = self.ctx
+        ctx.event(Severity.WARNING, describe(u, t, inst))
+        if u in SENSOR_NAMES and t is FailureType.OFF:
+            ctx.event(Severity.EMERGENCY, f"{SENSOR_NAMES[u]} #0 fail: TIMEOUT!")  # PX4's sensor voter
+        if u is FailureUnit.SENSOR_GPS:
+            if t is FailureType.OFF and self._gps_lost_s is None:
+                self._gps_lost_s = now_s if math.isfinite(now_s) else ctx.now_s
+            elif t is FailureType.OK:
+                self._gps_lost_s = None
+        self._update_sensor_faults()
+        return ACCEPTED
+
+    def _update_sensor_faults(self) -> None:
+        """The arming refusals the injected sensor failures cause (PX4's preflight checks)."""
+        faults = [f"{SENSOR_NAMES[u]} sensor 0 missing" for u in SENSOR_NAMES if self.failures.is_active(u)]
+        if self.failures.is_active(FailureUnit.SENSOR_GPS):
+            faults.append("GPS receiver missing")
+        if self.failures.is_active(FailureUnit.SYSTEM_MOTOR):
+            faults.append("motor failure")
+        self.ctx.sensor_faults = tuple(faults)
+
+    def _check_injected_failures(self, now_s: float) -> None:
+        """The consequences that follow from the injected failures in time: the position estimate lost after a GPS
+        loss (PX4's mode fallback: Altitude with RC in Position, else Descend) and regained after OK; no attitude
+        estimate in the air (accel or gyro off): flight termination."""
+        ctx = self.ctx
+        lost = self._gps_lost_s is not None and now_s - self._gps_lost_s >= GPS_NOAID_TIMEOUT_S
+        if lost and ctx.position_valid:
+            ctx.position_valid = False
+            in_air = ctx.armed and not ctx.on_ground
+            if in_air and ctx.mode == FlightMode.POSCTL and self.tasks.manual.fresh(now_s):
+                self.tasks.enter(FlightMode.ALTCTL, now_s)
+                ctx.event(Severity.WARNING, "Failsafe activated (no GPS): switching to Altitude")
+            elif in_air and ctx.mode in POSITION_MODES:
+                self._nav_fallback_from = ctx.mode
+                self.tasks.enter(FlightMode.AUTO_LAND, now_s)
+                ctx.event(Severity.WARNING, "Failsafe activated (no GPS): switching to Descend")
+            else:
+                ctx.event(Severity.CRITICAL, "Global position estimate invalid (GPS lost)")
+        elif not lost and not ctx.position_valid:
+            ctx.position_valid = True
+            back = self._nav_fallback_from
+            self._nav_fallback_from = None
+            if back is not None and ctx.mode == FlightMode.AUTO_LAND and ctx.armed and not ctx.on_ground:
+                self.tasks.enter(back, now_s)  # PX4 clears a mode fallback when its condition clears
+                ctx.event(Severity.INFO, f"Global position regained: back to {MODE_NAMES[back]}")
+            else:
+                ctx.event(Severity.INFO, "Global position regained")
+        if (
+            ctx.armed
+            and not ctx.on_ground
+            and (
+                self.failures.is_active(FailureUnit.SENSOR_ACCEL)
+                or self.failures.is_active(FailureUnit.SENSOR_GYRO)
+            )
+        ):
+            self.commander.failsafe(5, "attitude estimate invalid", kind="No attitude estimate")
 
     def announce(self, severity: Severity, text: str) -> None:
         """A message from outside the flight logic (the trial's "land now", an operator note) sent as the
@@ -365,6 +466,8 @@ class Autopilot:
         elif change == Transition.LIFTOFF:
             ctx.event(Severity.INFO, "Takeoff detected")
         self.land_detector.classify(ctx.armed, self.tasks.takeoff_phase, self.tasks.landing_phase)
+        if self.failures.active or not ctx.position_valid:
+            self._check_injected_failures(now_s)
         self.commander.check_failsafes(now_s)
         self.commander.auto_disarm(now_s)
 
@@ -381,6 +484,8 @@ class Autopilot:
                 ctx.ctrl.reset()
                 ctx.yaw_sp = state.yaw_rad if math.isfinite(state.yaw_rad) else 0.0
                 cmd = EavCommand(0.0, 0.0, ctx.yaw_sp, eav.hover_thrust_n)
+            if self.failures.motors_off:  # dead motors (injected): what the airframe makes of the command
+                cmd = motor_failure_command(cmd, self.failures.motors_off, state.yaw_rad, eav.max_thrust_n)
         mission = self.tasks.mission
         if ctx.armed and mission.trigger.update(float(state.pos_ned_m[0]), float(state.pos_ned_m[1])):
             mission.payload.append(PayloadAction("capture_once"))

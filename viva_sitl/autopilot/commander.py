@@ -40,6 +40,16 @@ MAX_TAKEOFF_ALT_M = 1000.0
 # returns to the last one the user selected that allows arming (PX4's UserModeIntention::onDisarm).
 PREVENTS_ARMING = frozenset({FlightMode.AUTO_LAND, FlightMode.AUTO_RTL})
 GEOFENCE_CHECK_S = 0.1  # the footage and geofence tests run at 10 Hz (the footage test may be costly)
+# the modes that need a global (or local horizontal) position estimate: refused while it is invalid (a lost GPS)
+POSITION_MODES = frozenset({FlightMode.AUTO_LOITER, FlightMode.AUTO_MISSION, FlightMode.AUTO_RTL,
+                            FlightMode.AUTO_TAKEOFF, FlightMode.POSCTL, FlightMode.ORBIT})  # fmt: skip
+MODE_NAMES = {FlightMode.AUTO_LOITER: "Hold", FlightMode.AUTO_MISSION: "Mission", FlightMode.AUTO_RTL: "Return",
+              FlightMode.AUTO_TAKEOFF: "Takeoff", FlightMode.POSCTL: "Position", FlightMode.ORBIT: "Orbit"}  # fmt: skip
+
+
+def no_position(what: str) -> Outcome:
+    """PX4 refuses a mode that needs a position estimate while it is invalid (TEMPORARILY_REJECTED)."""
+    return rejected(f"{what} denied: no global position (GPS lost)")
 
 
 def denied(reason: str) -> Outcome:
@@ -81,7 +91,11 @@ class Commander:
             return denied("Arming denied: vehicle outside geofence")
         if ctx.battery_remaining <= ctx.params.get("BAT_CRIT_THR"):
             return denied("Arming denied: battery too low")
+        if ctx.sensor_faults:
+            return denied(f"Arming denied: {ctx.sensor_faults[0]}")
         mode = ctx.mode
+        if mode in POSITION_MODES and not ctx.position_valid:
+            return denied(f"Arming denied: {MODE_NAMES[mode]} mode requires a global position")
         if mode == FlightMode.AUTO_MISSION and not tasks.mission.valid:
             return denied("Arming denied: no valid mission")
         if mode == FlightMode.OFFBOARD and not tasks.offboard.fresh(now_s):
@@ -179,6 +193,8 @@ class Commander:
             return denied(f"Takeoff denied: altitude {alt} m out of range")
         if not ctx.armed:
             return denied("Takeoff denied: vehicle not armed")
+        if not ctx.position_valid:
+            return no_position("Takeoff")
         self.tasks.takeoff.start(alt)
         return ACCEPTED
 
@@ -189,6 +205,8 @@ class Commander:
 
     def return_to_launch(self, now_s: float) -> Outcome:
         self.ctx.now_s = now_s
+        if not self.ctx.position_valid:
+            return no_position("Return")
         self.tasks.enter(FlightMode.AUTO_RTL, now_s)
         return ACCEPTED
 
@@ -207,6 +225,8 @@ class Commander:
             return rejected(f"Switching to {mode.name} denied: no manual control (RC)")
         if mode == FlightMode.ORBIT and (not ctx.armed or ctx.on_ground):
             return rejected("Switching to Orbit denied: not flying")
+        if mode in POSITION_MODES and not ctx.position_valid:
+            return no_position(f"Switching to {MODE_NAMES[mode]}")
         self._user_selected(mode)
         if mode == FlightMode.AUTO_TAKEOFF:
             if ctx.armed:
@@ -227,6 +247,8 @@ class Commander:
             return denied("Reposition denied: vehicle not armed")
         if ctx.on_ground:
             return rejected("Reposition denied: landed, take off first")
+        if not ctx.position_valid:
+            return no_position("Reposition")
         pos = ctx.pos
         target = np.array(
             [
@@ -264,6 +286,8 @@ class Commander:
             return denied("Orbit denied: vehicle not armed")
         if ctx.on_ground:
             return rejected("Orbit denied: landed, take off first")
+        if not ctx.position_valid:
+            return no_position("Orbit")
         if center_ne_m is not None and not finite(*center_ne_m):
             center_ne_m = None
         pos = ctx.pos
@@ -317,6 +341,8 @@ class Commander:
         mission = self.tasks.mission
         if not mission.valid:
             return denied("Mission start denied: no valid mission")
+        if not self.ctx.position_valid:
+            return no_position("Mission start")
         if not (0 <= first_seq < len(mission.items)):
             return denied(f"Mission start denied: item {first_seq} does not exist")
         self._user_selected(FlightMode.AUTO_MISSION)

@@ -49,6 +49,10 @@ class FlightContext:
         default_factory=Geofence
     )  # the uploaded fence (MISSION_TYPE_FENCE); empty = none
     rally: tuple[RallyPoint, ...] = ()  # the uploaded rally points (MISSION_TYPE_RALLY)
+    # injected sensor failures (autopilot/failures.py), as PX4's failsafe flags: False when the global position is
+    # invalid (GPS lost past the dead-reckoning time); the arming refusals the failed sensors cause
+    position_valid: bool = True
+    sensor_faults: tuple[str, ...] = ()
     _eav_rev: int = -1
     _eav_cached: EavParams | None = None
     _bat_rev: int = -1

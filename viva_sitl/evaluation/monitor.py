@@ -11,7 +11,8 @@ the pilot (set by the runner).
 Event schedule (times in s after the start): "land now" at land_at_s (an event the pilot sees: in-process in the
 observation, over MAVLink as a STATUSTEXT "Emergency: land now"); failures: gcs_link_lost (the virtual ground station
 stops being heard: PX4's NAV_DLL_ACT link-loss failsafe after COM_DL_LOSS_T), battery_critical (the battery
-drops below BAT_CRIT_THR: PX4's "Critical battery level! Land now" warning); each through
+drops below BAT_CRIT_THR: PX4's "Critical battery level! Land now" warning), gps_loss, motor_failure (motor 1),
+rc_loss and camera_blackout / camera_frozen / camera_dropped (autopilot/failures.py says what each does); each through
 Autopilot.inject_failure, as MAV_CMD_INJECT_FAILURE (FAILURES maps a kind to its unit and type).
 """
 
@@ -46,7 +47,14 @@ INJECTED_PREFIX = (
 FAILURES: dict[str, tuple[FailureUnit, FailureType, str]] = {
     "gcs_link_lost": (FailureUnit.SYSTEM_MAVLINK_SIGNAL, FailureType.OFF, "GCS link lost"),
     "battery_critical": (FailureUnit.SYSTEM_BATTERY, FailureType.WRONG, "battery critical"),
+    "gps_loss": (FailureUnit.SENSOR_GPS, FailureType.OFF, "GPS lost"),
+    "motor_failure": (FailureUnit.SYSTEM_MOTOR, FailureType.OFF, "motor 1 failed"),
+    "rc_loss": (FailureUnit.SYSTEM_RC_SIGNAL, FailureType.OFF, "RC signal lost"),
+    "camera_blackout": (FailureUnit.SENSOR_CAMERA, FailureType.WRONG, "camera blackout"),
+    "camera_frozen": (FailureUnit.SENSOR_CAMERA, FailureType.STUCK, "camera frozen"),
+    "camera_dropped": (FailureUnit.SENSOR_CAMERA, FailureType.OFF, "camera frames dropped"),
 }
+FAILURE_INSTANCE = {"motor_failure": 1}  # the injection's instance where it is not 0 (all)
 GCS_HEARTBEAT_PERIOD_S = 1.0
 
 
@@ -206,7 +214,9 @@ class TrialMonitor:
         unit, ftype, what = FAILURES[kind]
         # the simulator's own injection: through the autopilot's MAV_CMD_INJECT_FAILURE path, not gated by
         # SYS_FAILURE_EN (which gates a pilot's or ground station's command)
-        out = v.autopilot.inject_failure(float(v.state.time_s), unit, ftype, check_enabled=False)
+        out = v.autopilot.inject_failure(
+            float(v.state.time_s), unit, ftype, FAILURE_INSTANCE.get(kind, 0), check_enabled=False
+        )
         if out.ok:
             self.event(t, "failure", f"{INJECTED_PREFIX} {what}", int(Severity.CRITICAL))
         else:

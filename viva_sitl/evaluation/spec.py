@@ -19,7 +19,8 @@ choice):
                gym env share footage decodes), land_at_s (the "land now" trigger, s after the start),
                wind_speed_m_s, wind_dir_deg (where the wind blows *from*), gust_std_m_s
     [scenario.params]      PX4 parameter = number or [lo, hi] (e.g. MPC_LAND_SPEED, SIM_MASS)
-    [[scenario.failures]]  kind = "gcs_link_lost" | "battery_critical", at_s = [lo, hi], probability = 0..1
+    [[scenario.failures]]  kind = "gcs_link_lost" | "battery_critical" | "gps_loss" | "motor_failure" | "rc_loss" |
+                           "camera_blackout" | "camera_frozen" | "camera_dropped", at_s = [lo, hi], probability = 0..1
     [scoring]  final_descent_below_m, and criterion = {name, landed, max_touchdown_speed_m_s,
                min_dist_person_m, min_dist_vehicle_m, min_dist_object_m (any tracked object, motion-derived
                "moving object" tracks included), max_risk_level}: the checks it names (landed: default true);
@@ -49,7 +50,11 @@ if TYPE_CHECKING:
     from viva_sitl.footage import FootageSource
 
 SCENARIO_SCHEMA = "vivasitl.scenario.v1"
-FAILURE_KINDS = ("gcs_link_lost", "battery_critical")
+FAILURE_KINDS = (
+    "gcs_link_lost", "battery_critical",
+    # MAV_CMD_INJECT_FAILURE's units (autopilot/failures.py; evaluation/monitor.py maps each to its injection)
+    "gps_loss", "motor_failure", "rc_loss", "camera_blackout", "camera_frozen", "camera_dropped",
+)  # fmt: skip
 START_KINDS = ("air", "ground")
 # keys the scenario sets through its own fields: never as [scenario.params]
 _RESERVED_PARAMS = ("SIM_WIND_N", "SIM_WIND_E", "SIM_WIND_D", "SIM_GUST_STD")

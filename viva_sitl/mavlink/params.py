@@ -38,6 +38,11 @@ HASH_PARAM = "_HASH_CHECK"
 LIST_BURST = 20  # PARAM_VALUEs per burst (PX4: up to 20 per mavlink loop iteration on UDP)
 LIST_BURST_PERIOD_S = 0.01  # one burst per this: 2000 parameters/s, a 1172-parameter list in ~0.6 s
 MAX_LIST_STREAMS = 16  # peers listing at once; a new one replaces the oldest
+# PX4 (MavlinkParametersManager::send_untransmitted) broadcasts every changed parameter again ~5 ms after the change,
+# besides the direct PARAM_VALUE answering the PARAM_SET. MAVSDK relies on it: the answer to its own PARAM_SET is
+# consumed by the set, only the second PARAM_VALUE reaches its parameter subscriptions (the failure plugin's cached
+# SYS_FAILURE_EN, say).
+UNTRANSMITTED_DELAY_S = 0.005
 
 
 def encode_param_value(value: float, ptype: ParamType) -> float:
@@ -69,6 +74,7 @@ class ParamProtocol:
         self.sets_rejected = 0
         self.list_values_sent = 0
         self._streams: dict[tuple[object, tuple[str, int]], _ListStream] = {}
+        self._untransmitted: dict[str, None] = {}  # changed by a PARAM_SET, broadcast again by run()
         self._wake = asyncio.Event()
 
     # --- messages -------------------------------------------------------------------------------
@@ -114,12 +120,28 @@ class ParamProtocol:
                     del self._streams[key]
                     break
 
+    def send_untransmitted(self) -> None:
+        """Broadcast once more every parameter a PARAM_SET changed since the last call (PX4's send_untransmitted)."""
+        names, self._untransmitted = list(self._untransmitted), {}
+        for name in names:
+            self.out.broadcast(self._value_msg(name))
+
     async def run(self) -> None:
-        """The owned task that paces list answers: a burst every LIST_BURST_PERIOD_S while any list streams."""
+        """The owned task that paces list answers (a burst every LIST_BURST_PERIOD_S while any list streams) and
+        re-announces changed parameters UNTRANSMITTED_DELAY_S after a PARAM_SET."""
         while True:
-            if not self._streams:
+            if not self._streams and not self._untransmitted:
                 self._wake.clear()
                 await self._wake.wait()
+            if self._untransmitted:
+                await asyncio.sleep(UNTRANSMITTED_DELAY_S)
+                try:
+                    self.send_untransmitted()
+                except Exception:  # a bug: log it, keep the task alive
+                    log.exception("parameter change broadcast failed")
+                    self._untransmitted.clear()
+            if not self._streams:
+                continue
             try:
                 self.send_burst()
             except Exception:  # a bug: log it, drop the streams, keep the task alive
@@ -162,6 +184,7 @@ class ParamProtocol:
             self.statustext(origin, Severity.ERROR, f"[pm] param types mismatch: {name}")
             return
         value = decode_param_value(float(msg.param_value), spec.type)
+        before = self.store.stored(name)
         try:
             if not math.isfinite(value):
                 raise ValueError(f"{name} must be finite")
@@ -172,5 +195,10 @@ class ParamProtocol:
         else:
             self.sets_accepted += 1
             log.info("param %s = %s", name, self.store.stored(name))
+            if (
+                self.store.stored(name) != before
+            ):  # PX4 re-announces a changed value (see UNTRANSMITTED_DELAY_S)
+                self._untransmitted[name] = None
+                self._wake.set()
         # PX4 announces the (new or unchanged) value to every link
         self.out.broadcast(self._value_msg(name))

@@ -311,6 +311,8 @@ class TelemetryBuilder:
                 health |= SENSOR_PREARM
         except Exception:  # a failing check is a failed check, never a dead telemetry stream
             pass
+        # injected sensor failures (MAV_CMD_INJECT_FAILURE) clear their health bits
+        health &= ~int(getattr(ap, "failed_health_bits", 0))
         volt_mv = clamp_int(ap.battery_voltage_v * 1000.0, 0, UINT16_MAX - 1)
         remaining = clamp_int(ap.battery_remaining * 100.0, 0, 100)
         return M.MAVLink_sys_status_message(
@@ -379,7 +381,9 @@ class TelemetryBuilder:
             time_boot_ms(self.vehicle), *s.q_wxyz, *s.body_rates_rad_s, (0.0, 0.0, 0.0, 0.0)
         )
 
-    def global_position_int(self) -> MavMessage:
+    def global_position_int(self) -> MavMessage | None:
+        if not getattr(self.vehicle.autopilot, "global_position_valid", True):
+            return None  # PX4 publishes no global position while the estimate is invalid (a lost GPS)
         s = self.snapshot()
         vn, ve, vd = s.vel_ned_m_s
         return M.MAVLink_global_position_int_message(
@@ -399,6 +403,12 @@ class TelemetryBuilder:
         return M.MAVLink_local_position_ned_message(time_boot_ms(self.vehicle), *s.pos_ned_m, *s.vel_ned_m_s)
 
     def gps_raw_int(self) -> MavMessage:
+        # an injected GPS failure: no fix, no satellites
+        if not getattr(self.vehicle.autopilot, "gps_fix", True):
+            return M.MAVLink_gps_raw_int_message(
+                time_boot_us(self.vehicle), M.GPS_FIX_TYPE_NO_GPS, 0, 0, 0, UINT16_MAX, UINT16_MAX,
+                UINT16_MAX, UINT16_MAX, 0, 0, 0, 0, 0, 0, 0,
+            )  # fmt: skip
         s = self.snapshot()
         cog = (
             math.degrees(math.atan2(s.vel_ned_m_s[1], s.vel_ned_m_s[0])) % 360.0

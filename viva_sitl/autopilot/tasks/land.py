@@ -3,7 +3,10 @@ holding the horizontal position; also the final phase of RTL and of a mission LA
 
 from __future__ import annotations
 
+import math
+
 from viva_sitl.autopilot.context import FlightContext
+from viva_sitl.autopilot.control import TrajectorySetpoint
 from viva_sitl.autopilot.tasks.common import descent_setpoint, limits, run_position
 from viva_sitl.dynamics import EavCommand, EavParams, EavState
 
@@ -30,6 +33,15 @@ def descend(
     return run_position(ctx, dt, state, sp, lim, eav, None, 0.0)
 
 
+def descend_blind(ctx: FlightContext, dt: float, state: EavState, eav: EavParams) -> EavCommand:
+    """PX4's Descend (no horizontal position estimate, e.g. the GPS lost): no horizontal control, level (zero
+    horizontal acceleration), down at MPC_LAND_SPEED on the height estimate, drifting with the wind."""
+    v = ctx.params.get("MPC_LAND_SPEED")
+    sp = TrajectorySetpoint(vel_ned_m_s=(math.nan, math.nan, v), acc_ned_m_s2=(0.0, 0.0, math.nan))
+    lim = limits(ctx, xy=ctx.cruise(), down=max(v, 0.1), auto=True)
+    return run_position(ctx, dt, state, sp, lim, eav, None, 0.0)
+
+
 class LandTask:
     def __init__(self, ctx: FlightContext) -> None:
         self.ctx = ctx
@@ -40,6 +52,8 @@ class LandTask:
         self.xy = (float(pos[0]), float(pos[1]))
 
     def update(self, now_s: float, dt: float, state: EavState, eav: EavParams) -> EavCommand:
+        if not self.ctx.position_valid:
+            return descend_blind(self.ctx, dt, state, eav)
         if self.xy is None:
             self.xy = (float(state.pos_ned_m[0]), float(state.pos_ned_m[1]))
         return descend(self.ctx, dt, state, eav, self.xy)
