@@ -81,3 +81,18 @@ def all_safe_segmenter() -> Any:
 
 def broken_factory() -> Any:
     raise RuntimeError("weights file corrupt")
+
+
+def lens_gt_segmenter() -> Any:
+    """gt_segmenter through the lens: the level of the ideal-pinhole pixel each distorted pixel shows."""
+    from viva_sitl.camera.effects import distortion_source_map
+    from viva_sitl.camera.projection import camera_intrinsics
+
+    def run(image: Any, meta: dict[str, Any]) -> np.ndarray:
+        k1, k2 = meta["lens_k1_k2"]
+        params = CameraParams(width_px=meta["width_px"], height_px=meta["height_px"], k1=k1, k2=k2)
+        pos, att = np.array(meta["pos_ned_m"]), np.array(meta["att_rpy_rad"])
+        src = distortion_source_map(params, camera_intrinsics(params)) if params.has_distortion else None
+        return risk_mask(_world(meta["footage"]), pos, att, meta["time_s"], params, src)
+
+    return run

@@ -23,7 +23,8 @@ Models (--detector / --segmenter W):
   logits over levels 1..5 (6: channel 0 = no ground, ignored) or (1, H, W) levels.
 - `module:factory` (importable from the current directory or the environment): factory() returns a callable
   f(image_bgr) or f(image_bgr, meta); meta is a dict with the frame's footage, pos_ned_m, att_rpy_rad, vel_ned_m_s,
-  time_s, width_px, height_px and intrinsics_k (what the frame-and-pose socket sends). A detector returns rows
+  time_s, width_px, height_px, intrinsics_k (what the frame-and-pose socket sends) and lens_k1_k2 (the lens's
+  radial distortion, 0 without --effects distortion). A detector returns rows
   [x1, y1, x2, y2, class, score] (pixel edges, class = viva_sitl.world.ObjectClass ids, as `dataset export` labels;
   --class-map SRC=DST,... renames a model's ids) or a list of `Detection`; a segmenter returns an (H, W) array of
   levels 1..5 (0: no prediction).
@@ -853,7 +854,8 @@ def run_eval(
                                 meta = {"footage": name, "pos_ned_m": list(pose.pos_ned_m),
                                         "att_rpy_rad": list(pose.att_rpy_rad), "vel_ned_m_s": vel.tolist(),
                                         "time_s": pose.time_s, "width_px": params.width_px,
-                                        "height_px": params.height_px, "intrinsics_k": k_list}  # fmt: skip
+                                        "height_px": params.height_px, "intrinsics_k": k_list,
+                                        "lens_k1_k2": [params.k1, params.k2]}  # fmt: skip
                                 try:
                                     out = model.fn(img, meta)
                                 except PerceptionError:
