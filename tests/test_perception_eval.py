@@ -244,3 +244,104 @@ def test_cli_writes_the_outputs(tmp_path: Path) -> None:
     assert r.returncode == 0, r.stderr
     d = json.loads((tmp_path / "cmp" / "compare.json").read_text())
     assert {c["diff"]["map50"]["value"] for c in d["cells"]} <= {0.0, None}
+
+
+def test_average_precision_matches_pycocotools() -> None:
+    """Our COCO-style AP against the reference implementation on random frames (skipped without pycocotools)."""
+    pytest.importorskip("pycocotools", reason="the cross-check needs pycocotools (not a dependency)")
+    from pycocotools.coco import COCO
+    from pycocotools.cocoeval import COCOeval
+
+    from viva_sitl.perception.evaluate import GtObjects, det_frame, det_metrics
+
+    rng = np.random.default_rng(3)
+    images, anns, dets, frames = [], [], [], []
+    for i in range(12):
+        g = int(rng.integers(0, 6))
+        xy = rng.uniform(0, 500, (g, 2))
+        wh = rng.uniform(8, 60, (g, 2))
+        gt_boxes = np.column_stack([xy, xy + wh])
+        gt_cls = rng.integers(0, 2, g)
+        # predictions: jittered copies of some ground truth plus clutter, random scores
+        keep = rng.random(g) < 0.8
+        jit = gt_boxes[keep] + rng.normal(0, 4, (int(keep.sum()), 4))
+        clutter_xy = rng.uniform(0, 500, (3, 2))
+        clutter = np.column_stack([clutter_xy, clutter_xy + rng.uniform(8, 60, (3, 2))])
+        pb = np.vstack([jit, clutter])
+        pc = np.concatenate([gt_cls[keep], rng.integers(0, 2, 3)])
+        ps = rng.uniform(0.05, 1.0, len(pb))
+        preds = np.column_stack([pb, pc, ps])
+        images.append({"id": i, "width": 640, "height": 640})
+        for b, c in zip(gt_boxes, gt_cls, strict=True):
+            w, h = b[2] - b[0], b[3] - b[1]
+            anns.append({"id": len(anns) + 1, "image_id": i, "category_id": int(c), "iscrowd": 0,
+                         "bbox": [b[0], b[1], w, h], "area": w * h})  # fmt: skip
+        for r in preds:
+            dets.append({"image_id": i, "category_id": int(r[4]), "score": float(r[5]),
+                         "bbox": [r[0], r[1], r[2] - r[0], r[3] - r[1]]})  # fmt: skip
+        gt = GtObjects(gt_cls.astype(np.int64), gt_boxes, np.zeros(g), np.zeros(g))
+        frames.append(det_frame(gt, preds, [0, 1], 0.25))
+    coco = COCO()
+    coco.dataset = {"images": images, "annotations": anns, "categories": [{"id": 0}, {"id": 1}]}
+    coco.createIndex()
+    ev = COCOeval(coco, coco.loadRes(dets), "bbox")
+    ev.evaluate()
+    ev.accumulate()
+    ev.summarize()
+    ours = det_metrics(frames, [0, 1], 0.25, 10.0, {})
+    assert ours["map50_95"] == pytest.approx(ev.stats[0], abs=1e-9)
+    assert ours["map50"] == pytest.approx(ev.stats[1], abs=1e-9)
+
+
+def _onnx_model(path: Path, out: np.ndarray | None = None, bias: list[float] | None = None) -> None:
+    """A tiny ONNX model on a 1x3x480x640 input: a constant output (detector) or a 1x1 conv whose bias picks the
+    level (segmenter)."""
+    onnx = pytest.importorskip("onnx", reason="building an ONNX model needs onnx (extra perception-onnx)")
+    from onnx import TensorProto, helper, numpy_helper
+
+    x = helper.make_tensor_value_info("images", TensorProto.FLOAT, [1, 3, 480, 640])
+    if out is not None:  # detector: output = out + 0 * sum(input)
+        nodes = [helper.make_node("ReduceSum", ["images"], ["s"], keepdims=0),
+                 helper.make_node("Mul", ["s", "zero"], ["z"]), helper.make_node("Add", ["c", "z"], ["output0"])]  # fmt: skip
+        inits = [numpy_helper.from_array(out.astype(np.float32), "c"),
+                 numpy_helper.from_array(np.array(0.0, np.float32), "zero")]  # fmt: skip
+        y = helper.make_tensor_value_info("output0", TensorProto.FLOAT, list(out.shape))
+    else:
+        assert bias is not None
+        nodes = [helper.make_node("Conv", ["images", "w", "b"], ["output0"])]
+        inits = [numpy_helper.from_array(np.zeros((len(bias), 3, 1, 1), np.float32), "w"),
+                 numpy_helper.from_array(np.array(bias, np.float32), "b")]  # fmt: skip
+        y = helper.make_tensor_value_info("output0", TensorProto.FLOAT, [1, len(bias), 480, 640])
+    model = helper.make_model(
+        helper.make_graph(nodes, "t", [x], [y], inits), opset_imports=[helper.make_opsetid("", 17)]
+    )
+    onnx.save(model, str(path))
+
+
+def test_onnx_models_run_without_torch(tmp_path: Path) -> None:
+    pytest.importorskip("onnxruntime", reason="ONNX inference needs onnxruntime (extra perception-onnx)")
+    # segmenter: 6 channels, the bias makes level 1 win everywhere: scored as the all-safe callable is
+    _onnx_model(tmp_path / "seg.onnx", bias=[9.0, 5.0, 0.0, 0.0, 0.0, 0.0])
+    spec = EvalSpec(task="segmentation", model=str(tmp_path / "seg.onnx"), **SMALL)
+    onnx_r = run_eval(spec)[0]
+    assert onnx_r["model"]["kind"] == "onnx"
+    ref = run_eval(replace(spec, model="perception_oracles:all_safe_segmenter"))[0]
+    assert [c["metrics"] for c in onnx_r["cells"]] == [c["metrics"] for c in ref["cells"]]
+    # detector, raw YOLOv8 layout (1, 4 + 7 classes, N): one person box at (90..110, 90..110) of score 0.9
+    raw = np.zeros((1, 11, 20), np.float32)  # N > 4 + classes, as in any real export (8400 at 640)
+    raw[0, :4, 0] = [100, 100, 20, 20]
+    raw[0, 4, 0] = 0.9
+    # ... and the (1, N, 6) nms layout [x1, y1, x2, y2, score, class]: the same box
+    nms = np.zeros((1, 3, 6), np.float32)
+    nms[0, 0] = [90, 90, 110, 110, 0.9, 0]
+    for name, out in (("raw", raw), ("nms", nms)):
+        _onnx_model(tmp_path / f"{name}.onnx", out=out)
+        r = run_eval(EvalSpec(task="detection", model=str(tmp_path / f"{name}.onnx"), **SMALL))[0]
+        for f in r["frames"]:  # the fixed box hits nothing real: one false positive per frame
+            assert f["false_pos"] == 1 and f["found"] == 0, (name, f)
+        assert {c["per_class"]["person"]["n_pred"] for c in r["cells"]} == {SMALL["n_per_cell"]}
+    (tmp_path / "bad.onnx").write_bytes(b"not onnx")
+    with pytest.raises(PerceptionError, match="is not a loadable ONNX model"):
+        run_eval(EvalSpec(task="detection", model=str(tmp_path / "bad.onnx"), **SMALL))
+    with pytest.raises(PerceptionError, match="not a segmenter"):
+        run_eval(EvalSpec(task="segmentation", model=str(tmp_path / "raw.onnx"), **SMALL))

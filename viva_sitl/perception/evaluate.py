@@ -307,6 +307,10 @@ class OnnxModel:
         except Exception as exc:
             raise PerceptionError(f"{self.path.name} failed on a {w}x{h} frame: {_first_line(exc)}") from None
         if self.task == "segmentation":
+            oh, ow = (out.shape[-2], out.shape[-1]) if out.ndim >= 2 else (0, 0)
+            if min(oh, ow) < 8 or abs(oh / ow - th / tw) > 0.05 * th / tw:  # a mask keeps the input's aspect
+                raise PerceptionError(f"{self.path.name} outputs {out.shape}: not a segmenter (expected a "
+                                      f"1x5xHxW, 1x6xHxW or 1xHxW mask for its {tw}x{th} input)")  # fmt: skip
             if out.ndim == 4 and out.shape[1] in (5, 6):
                 lv = out[0, -5:].argmax(0) + 1
             elif out.ndim == 3 and out.shape[0] == 1:
@@ -321,7 +325,7 @@ class OnnxModel:
         if o.ndim != 2:
             raise PerceptionError(f"{self.path.name} outputs {out.shape}: not a detector")
         if o.shape[1] == 6 and o.shape[0] != 6:  # [x1, y1, x2, y2, score, class]
-            rows = o[:, [0, 1, 2, 3, 5, 4]].copy()
+            rows = o[o[:, 4] >= 0.001][:, [0, 1, 2, 3, 5, 4]]  # drops the export's zero padding rows
         elif o.shape[0] > 4 and o.shape[0] < o.shape[1]:  # raw YOLOv8 (4 + nc, N)
             o = o.T
             cls, score = o[:, 4:].argmax(1), o[:, 4:].max(1)
