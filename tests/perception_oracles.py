@@ -96,3 +96,20 @@ def lens_gt_segmenter() -> Any:
         return risk_mask(_world(meta["footage"]), pos, att, meta["time_s"], params, src)
 
     return run
+
+
+SHARPNESS: list[tuple[float, float]] = []  # sharpness_probe: (speed, variance of the Laplacian) per frame
+
+
+def sharpness_probe() -> Any:
+    """Detects nothing; records how sharp each evaluated frame is (blur lowers it, noise raises it)."""
+    import cv2
+
+    def run(image: Any, meta: dict[str, Any]) -> np.ndarray:
+        gray = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
+        SHARPNESS.append(
+            (float(np.hypot(*meta["vel_ned_m_s"][:2])), float(cv2.Laplacian(gray, cv2.CV_64F).var()))
+        )
+        return np.zeros((0, 6))
+
+    return run

@@ -231,7 +231,10 @@ def load_model(spec: str, task: str) -> Model:
                 return Model("ultralytics", lambda img, meta: det.detect(img))
             from viva_sitl.perception.errors import require_torch
 
-            require_torch()
+            try:
+                require_torch()
+            except PerceptionError as exc:
+                raise PerceptionError(f"segmenter {path.name} (a U-Net .pt): {exc}") from None
             from viva_sitl.perception.segment import Segmenter
 
             seg = Segmenter.load(path)
