@@ -374,3 +374,19 @@ def test_blur_follows_the_speed_and_noise_is_added() -> None:
         EvalSpec("detection", "perception_oracles:sharpness_probe", effects=EffectSpec.parse("noise"), **kw)
     )
     assert all(n[1] > 2.0 * s[1] for s, n in zip(still, oracles.SHARPNESS, strict=True))
+
+
+def test_detector_answers_are_checked_and_class_ids_renamed() -> None:
+    from viva_sitl.perception.detect import Detection
+    from viva_sitl.perception.evaluate import as_detections, as_levels
+
+    rows = as_detections([[1, 2, 5, 6, 0, 0.9]], {0: 2})
+    assert rows.tolist() == [[1, 2, 5, 6, 2, 0.9]]  # a one-class vehicle model's 0 -> car
+    assert as_detections([Detection(4, "truck", 0.5, (0, 0, 3, 3))], {}).tolist() == [[0, 0, 3, 3, 4, 0.5]]
+    assert as_detections([], {}).shape == (0, 6)
+    with pytest.raises(PerceptionError, match="x2 < x1"):
+        as_detections([[10, 10, 4, 4, 0, 0.9]], {})
+    with pytest.raises(PerceptionError, match="non-finite"):
+        as_detections([[0, 0, 4, 4, 0, float("nan")]], {})
+    with pytest.raises(PerceptionError, match="integer levels 0..5"):
+        as_levels(np.full((4, 4), 7, np.uint8), (4, 4))

@@ -372,6 +372,9 @@ def as_detections(out: Any, class_map: dict[int, int]) -> F64:
                               "x2, y2, class, score] (is it a segmenter?)")  # fmt: skip
     if not np.all(np.isfinite(a)):
         raise PerceptionError("the detector returned a non-finite box or score")
+    if np.any(a[:, 2] < a[:, 0]) or np.any(a[:, 3] < a[:, 1]):
+        raise PerceptionError("the detector returned a box with x2 < x1 or y2 < y1 (rows are [x1, y1, x2, y2, "
+                              "class, score], corners, not centre and size)")  # fmt: skip
     if class_map:
         a = a.copy()
         a[:, 4] = [class_map.get(int(c), int(c)) for c in a[:, 4]]
