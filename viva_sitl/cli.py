@@ -180,7 +180,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub.add_parser("dataset", help="labelled VAC datasets: export", add_help=False)
     sub.add_parser(
         "perception",
-        help="train perception models: train-sr | train-segmenter | train-detector",
+        help="train and evaluate perception models: train-sr | train-segmenter | train-detector | eval",
         add_help=False,
     )
     return parser

@@ -125,8 +125,17 @@ def perception_main(argv: list[str]) -> int:
     det.add_argument(
         "-o", "--output", required=True, help="output directory (weights in OUTPUT/train/weights)"
     )
+    from viva_sitl.perception.evaluate import add_eval_arguments
+
+    add_eval_arguments(
+        sub.add_parser("eval", help="score a detector or risk segmenter on the VAC vs ground truth")
+    )
     args = p.parse_args(argv)
 
+    if args.cmd == "eval":
+        from viva_sitl.perception.evaluate import eval_cli
+
+        return _run(lambda: eval_cli(args, argv), "viva-sitl perception eval")
     if args.cmd == "train-detector":
         return _run(lambda: _train_detector(args), "viva-sitl perception train-detector")
     if args.cmd == "train-sr":

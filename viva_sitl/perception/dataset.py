@@ -229,14 +229,23 @@ def project_boxes(
     return out
 
 
-def risk_mask(world: object, pos: F64, att: F64, t_s: float, params: CameraParams) -> NDArray[np.uint8]:
-    """Risk level (1..5) of the ground seen at every pixel centre; 0 where no footage ground is seen."""
+def risk_mask(
+    world: object, pos: F64, att: F64, t_s: float, params: CameraParams, source_px: F64 | None = None
+) -> NDArray[np.uint8]:
+    """Risk level (1..5) of the ground seen at every pixel centre; 0 where no footage ground is seen.
+
+    `source_px` (H, W, 2): the ideal-pinhole pixel each pixel shows (a distorted lens: the renderer's
+    `distortion_source_map`); None: the pixel itself."""
     from viva_sitl.world import WorldModel
 
     assert isinstance(world, WorldModel)
     w, h = params.width_px, params.height_px
-    uu, vv = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
-    g = pixel_to_ground(np.column_stack([uu.ravel(), vv.ravel()]), pos, att, params)
+    if source_px is None:
+        uu, vv = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
+        src = np.column_stack([uu.ravel(), vv.ravel()])
+    else:
+        src = np.asarray(source_px, np.float64).reshape(-1, 2)
+    g = pixel_to_ground(src, pos, att, params)
     ok = np.isfinite(g[:, 0])
     geom = world.geometry
     if not geom.unbounded and np.any(ok):
