@@ -191,9 +191,9 @@ def _is_ipv6(host: str) -> bool:
 class RtspError(Exception):
     """An RTSP error status for the request being answered (the connection stays open unless `close`)."""
 
-    def __init__(self, status: int, why: str = "", *, close: bool = False) -> None:
+    def __init__(self, status: int, why: str = "", *, close: bool = False, cseq: str | None = None) -> None:
         super().__init__(why or _REASONS.get(status, ""))
-        self.status, self.why, self.close = status, why, close
+        self.status, self.why, self.close, self.cseq = status, why, close, cseq
 
 
 @dataclass
@@ -231,7 +231,7 @@ def parse_request(head: bytes) -> Request:
         headers[name.strip().lower()] = value.strip()
     req = Request(method, url, headers)
     if version != "RTSP/1.0":
-        raise RtspError(505, f"{version} is not supported (RTSP/1.0 only)")
+        raise RtspError(505, f"{version} is not supported (RTSP/1.0 only)", cseq=req.cseq)
     return req
 
 
@@ -520,30 +520,41 @@ class RtspServer:
                 continue
             if s.need_keyframe and not keyframe:
                 continue
-            if s.transport.tcp:
-                if s.conn.buffered() > self.max_client_buffer_bytes:
-                    s.frames_dropped += 1
-                    s.need_keyframe = True
-                    continue
-                if interleaved is None or s.transport.channel != 0:
-                    ch = s.transport.channel
-                    data = b"".join(struct.pack("!BBH", 0x24, ch, len(p)) + p for p in packets)
-                    if ch == 0:
-                        interleaved = data
-                else:
-                    data = interleaved
-                s.conn.writer.write(data)
+            try:
+                interleaved = self._send(s, packets, interleaved)
+            except (OSError, RuntimeError) as exc:  # a transport that broke under us: that client only
+                log.debug("RTSP session %s: send failed: %s", s.id, exc)
+                s.frames_dropped += 1
+                s.need_keyframe = True
+
+    def _send(self, s: Session, packets: list[bytes], interleaved: bytes | None) -> bytes | None:
+        """Send one frame's packets to one session (or count it missed when its buffer is full); returns the
+        channel-0 interleaved bytes, built once per frame for every interleaved session."""
+        if s.transport.tcp:
+            if s.conn.buffered() > self.max_client_buffer_bytes:
+                s.frames_dropped += 1
+                s.need_keyframe = True
+                return interleaved
+            ch = s.transport.channel
+            if ch == 0 and interleaved is not None:
+                data = interleaved
             else:
-                rtp = self._rtp
-                if rtp is None or _udp_buffered(rtp) > self.max_client_buffer_bytes:
-                    s.frames_dropped += 1
-                    s.need_keyframe = True
-                    continue
-                addr = (s.client_ip, s.transport.rtp_port)
-                for p in packets:
-                    rtp.sendto(p, addr)
-            s.need_keyframe = False
-            s.frames_sent += 1
+                data = b"".join(struct.pack("!BBH", 0x24, ch, len(p)) + p for p in packets)
+                if ch == 0:
+                    interleaved = data
+            s.conn.writer.write(data)
+        else:
+            rtp = self._rtp
+            if rtp is None or _udp_buffered(rtp) > self.max_client_buffer_bytes:
+                s.frames_dropped += 1
+                s.need_keyframe = True
+                return interleaved
+            addr = (s.client_ip, s.transport.rtp_port)
+            for p in packets:
+                rtp.sendto(p, addr)
+        s.need_keyframe = False
+        s.frames_sent += 1
+        return interleaved
 
     async def _open(self) -> None:
         self._params_event = asyncio.Event()
@@ -579,7 +590,7 @@ class RtspServer:
     async def _close(self) -> None:
         for conn in list(self._conns):
             self._drop_connection(conn)
-            conn.writer.close()
+            _close_writer(conn.writer)
         if self._server is not None:
             self._server.close()
             with contextlib.suppress(Exception):
@@ -642,9 +653,9 @@ class RtspServer:
             return  # vanished mid-message: its sessions end below
         finally:
             self._drop_connection(conn)
-            writer.close()
+            _close_writer(writer)
             with contextlib.suppress(Exception):
-                await writer.wait_closed()
+                await asyncio.wait_for(writer.wait_closed(), 1.0)
 
     async def _reply(self, conn: _Connection, data: bytes, error: bool = False) -> None:
         if error:
@@ -667,6 +678,7 @@ class RtspServer:
                 raise RtspError(400, "no CSeq header")
             status, headers, body = await self._dispatch(conn, req)
         except RtspError as exc:
+            cseq = cseq if cseq is not None else exc.cseq
             log.debug("RTSP %s: %d %s", conn.peer_ip, exc.status, exc.why)
             body = (exc.why + "\r\n").encode("utf-8") if exc.why else b""
             await self._reply(conn, response(exc.status, cseq, body=body), True)
@@ -770,6 +782,17 @@ class RtspServer:
             s = self._session_of(conn, req)
             return 200, {"Session": self._session_header(s)}, b""
         return 200, {}, b""
+
+
+def _close_writer(writer: asyncio.StreamWriter) -> None:
+    """Close a connection; one with unsent data (a client that stopped reading) is reset, not waited for."""
+    transport = writer.transport
+    if transport.is_closing():
+        return
+    if transport.get_write_buffer_size() > 0:
+        transport.abort()
+    else:
+        writer.close()
 
 
 def _udp_buffered(transport: asyncio.DatagramTransport) -> int:
