@@ -9,7 +9,7 @@ import struct
 import subprocess
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import closing, contextmanager
 from dataclasses import replace
 from pathlib import Path
@@ -18,6 +18,8 @@ from typing import Any
 import av
 import numpy as np
 import pytest
+from pymavlink.dialects.v20 import common as mavlink2
+from sitl_process import MavlinkPeer, SitlProcess, free_tcp_port, free_udp_ports
 from test_video import FPS, H, W, config, psnr, run_stream, synthetic_image, wait_until
 
 from viva_sitl.video import VideoPipeline, read_counter, stamp_counter
@@ -31,6 +33,8 @@ from viva_sitl.video.rtsp import (
     parse_request,
     split_annexb,
 )
+
+CAMERA_COMPID = 100
 
 
 # -- helpers ---------------------------------------------------------------------------------------------------------
@@ -437,3 +441,45 @@ def test_gstreamer_rtspsrc_plays(tmp_path: Path) -> None:
     n = data.size // (W * H * 3)
     counters = [read_counter(f) for f in data[: n * W * H * 3].reshape(n, H, W, 3)]
     assert n >= 30 and None not in counters and counters == sorted(counters), counters
+
+
+@pytest.mark.e2e
+@pytest.mark.slow  # a viva-sitl process streaming video
+def test_viva_sitl_run_rtsp_advertised_and_played(sitl_factory: Callable[..., SitlProcess]) -> None:
+    """`viva-sitl run --rtsp PORT`: the ready line and VIDEO_STREAM_INFORMATION (type RTSP, the full URL) name the
+    stream, FFmpeg plays it, and the RTP/UDP stream keeps its own entry."""
+    rtsp_port = free_tcp_port()
+    video_port = free_udp_ports(1)[0]
+    sitl = sitl_factory(video_port=video_port, extra_args=["--rtsp", str(rtsp_port)])
+    url = f"rtsp://127.0.0.1:{rtsp_port}/vac"
+    assert f"rtsp {url}" in sitl.ready_line
+    peer = MavlinkPeer(sitl.ports.gcs)
+    try:
+        peer.wait_autopilot()
+        ack = peer.command_long(
+            mavlink2.MAV_CMD_REQUEST_MESSAGE,
+            [float(mavlink2.MAVLINK_MSG_ID_VIDEO_STREAM_INFORMATION), 0.0],
+            (1, CAMERA_COMPID),
+        )
+        assert ack.result == mavlink2.MAV_RESULT_ACCEPTED
+        streams: dict[int, Any] = {}
+        while len(streams) < 2:
+            m = peer.wait("VIDEO_STREAM_INFORMATION", lambda m: m.stream_id not in streams, 3.0, since_s=0.0)
+            streams[m.stream_id] = m
+    finally:
+        peer.close()
+    by_type = {m.type: m for m in streams.values()}
+    rtsp = by_type[mavlink2.VIDEO_STREAM_TYPE_RTSP]
+    assert rtsp.uri == url and rtsp.encoding == mavlink2.VIDEO_STREAM_ENCODING_H264
+    assert by_type[mavlink2.VIDEO_STREAM_TYPE_RTPUDP].uri == str(video_port)
+    with av.open(url, options={"rtsp_transport": "tcp"}, timeout=(10.0, 5.0)) as c:
+        frames = []
+        for f in c.decode(video=0):
+            frames.append(f.to_ndarray(format="bgr24"))
+            if len(frames) >= 30:
+                break
+    assert len(frames) == 30 and frames[-1].shape == (480, 640, 3)
+    assert sitl.alive
+    assert sitl.stop() == 0
+    stats = sitl.stop_stats()
+    assert stats["video"]["rtsp"]["sessions_total"] == 1 and stats["video"]["rtsp"]["errors_sent"] == 0
