@@ -483,3 +483,40 @@ def test_viva_sitl_run_rtsp_advertised_and_played(sitl_factory: Callable[..., Si
     assert sitl.stop() == 0
     stats = sitl.stop_stats()
     assert stats["video"]["rtsp"]["sessions_total"] == 1 and stats["video"]["rtsp"]["errors_sent"] == 0
+
+
+def test_silent_udp_session_times_out_and_oversized_requests_are_refused() -> None:
+    server = RtspServer("127.0.0.1", 0, fps=FPS, session_timeout_s=0.4)
+    with server:
+        url = server.url
+        c = RawClient(server.port)
+        status, h, _ = c.request(
+            "SETUP", f"{url}/trackID=0", Transport="RTP/AVP;unicast;client_port=40000-40001"
+        )
+        assert status == 200 and h["session"].endswith(";timeout=1")
+        assert server.clients == 1
+        wait_until(lambda: server.clients == 0, 5.0, "the silent UDP session timed out")
+        assert c.request("PLAY", url, Session=h["session"].split(";")[0])[0] == 454
+        big = RawClient(server.port)
+        big.send(b"OPTIONS * RTSP/1.0\r\nCSeq: 1\r\nX-Pad: " + b"a" * 40_000 + b"\r\n\r\n")
+        assert big.response()[0] == 400
+        with pytest.raises((ConnectionError, OSError)):
+            big.request("OPTIONS", "*")
+        c.close()
+
+
+def test_rtsp_flag_and_instances() -> None:
+    from viva_sitl.app import config_from_args
+    from viva_sitl.cli import build_parser
+
+    parser = build_parser()
+    off = config_from_args(parser.parse_args(["run"])).video
+    assert off.rtsp is False
+    v = config_from_args(parser.parse_args(["run", "--rtsp"])).video
+    assert (v.rtsp, v.rtsp_port, v.rtsp_host) == (True, 8554, "127.0.0.1")
+    v = config_from_args(parser.parse_args(["run", "--rtsp", "--instance", "2"])).video
+    assert (v.rtsp, v.rtsp_port) == (True, 8556)
+    v = config_from_args(parser.parse_args(["run", "--rtsp", "9000", "--instance", "2"])).video
+    assert (v.rtsp, v.rtsp_port) == (True, 9000)  # a port given is used as given, like --video-port
+    with pytest.raises(SystemExit):
+        parser.parse_args(["run", "--rtsp", "70000"])

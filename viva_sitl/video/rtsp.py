@@ -571,7 +571,10 @@ class RtspServer:
         """An even UDP port for RTP and the next one for RTCP (RFC 3550), on the server's address family."""
         loop = asyncio.get_running_loop()
         family = socket.AF_INET6 if _is_ipv6(self.host) else socket.AF_INET
-        bind_host = "::" if family == socket.AF_INET6 else "0.0.0.0"
+        try:  # the RTSP address when it is one (loopback stays loopback), else every interface
+            bind_host = str(ipaddress.ip_address(self.host))
+        except ValueError:
+            bind_host = "::" if family == socket.AF_INET6 else "0.0.0.0"
         for _ in range(50):
             rtp, _p = await loop.create_datagram_endpoint(_Discard, local_addr=(bind_host, 0), family=family)
             port = rtp.get_extra_info("sockname")[1]
@@ -715,7 +718,7 @@ class RtspServer:
         return s
 
     def _session_header(self, s: Session) -> str:
-        return f"{s.id};timeout={int(self.session_timeout_s)}"
+        return f"{s.id};timeout={max(1, round(self.session_timeout_s))}"
 
     async def _dispatch(self, conn: _Connection, req: Request) -> tuple[int, dict[str, str], bytes]:
         m = req.method
