@@ -117,6 +117,7 @@ def test_report_and_compare_show_object_distances_as_in_results_json(
         for t, row in zip(trials, doc["rows"], strict=True):
             assert row["gt_objects"] is True and row["objects_present"] is True
             assert all(row[c] is not None for c in OBJ)  # the synthetic field has people and cars
+            assert t.pop("ulog") == "log.ulg"  # the link to the trial's PX4 ULog (not a results column)
             for col, cell in t.items():
                 assert _same(cell, row[col]), (col, cell, row[col])
             # any object: never farther than the nearest person or vehicle

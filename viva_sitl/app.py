@@ -194,6 +194,9 @@ class SitlApp:
                     VideoStreamSpec(f"udp://{vc.host}:{vc.h264_port}", StreamEncoding.H264, "VAC H.264",
                                     bitrate_bps=vc.bitrate_kbps * 1000, **common)  # type: ignore[arg-type]
                 )  # fmt: skip
+            if self.video.rtsp_url:  # RTSP: the H.264 stream's packets (video/rtsp.py)
+                streams.append(VideoStreamSpec(self.video.rtsp_url, StreamEncoding.H264, "VAC H.264 RTSP",
+                                               bitrate_bps=vc.bitrate_kbps * 1000, **common))  # type: ignore[arg-type]  # fmt: skip
             if vc.mjpeg_rtp:
                 streams.append(
                     VideoStreamSpec(f"udp://{vc.host}:{vc.mjpeg_port}", StreamEncoding.MJPEG, "VAC MJPEG",
@@ -489,6 +492,8 @@ class SitlApp:
         if self.video is not None:
             for kind, sdp in self.video.sdp_paths.items():
                 parts.append(f"{kind} rtp sdp {sdp.resolve()}")
+            if self.video.rtsp_url:
+                parts.append(f"rtsp {self.video.rtsp_url}")
             if self.video.frame_socket_endpoint:
                 parts.append(f"frames {self.video.frame_socket_endpoint}")
         if self.dashboard is not None:  # dashboard: ready-line part
@@ -580,6 +585,10 @@ def config_from_args(args: argparse.Namespace) -> SimConfig:
     video = dataclasses.replace(video, **{k: v for k, v in video_updates.items() if v is not None})
     if args.mjpeg_port is not None:
         video = dataclasses.replace(video, mjpeg_rtp=True)
+    if getattr(args, "rtsp", None) is not None:  # --rtsp [PORT]: -1 = the config's port (after --instance)
+        video = dataclasses.replace(
+            video, rtsp=True, rtsp_port=args.rtsp if args.rtsp >= 0 else video.rtsp_port
+        )
     cfg = dataclasses.replace(cfg, mavlink=mav, video=video, **sim_updates)  # type: ignore[arg-type]
     if getattr(args, "scenario", None):  # a trial's start (pose, footage, parameters) over the config
         cfg = scenario_config(cfg, read_scenario_file(args.scenario)[0])

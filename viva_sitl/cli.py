@@ -97,6 +97,15 @@ def build_parser() -> argparse.ArgumentParser:
         "--frame-socket",
         help="ZeroMQ endpoint of the frame-and-pose socket (default tcp://127.0.0.1:5700+instance)",
     )
+    run.add_argument(
+        "--rtsp",
+        nargs="?",
+        const=-1,
+        type=port,
+        metavar="PORT",
+        help="also serve the VAC over RTSP at rtsp://127.0.0.1:PORT/vac (the H.264 stream's encode, shared; "
+        "default port 8554+instance; binds [video] rtsp_host)",
+    )
     run.add_argument("--record", help="record the VAC stream to this video file")
     run.add_argument(
         "--no-video",

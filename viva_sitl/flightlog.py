@@ -9,9 +9,9 @@
 
 Topics and fields carry PX4's names (uORB message definitions), so Flight Review, PlotJuggler and pyulog scripts
 written for PX4 logs read them: vehicle_local_position, vehicle_global_position, vehicle_attitude, vehicle_status,
-battery_status, trajectory_setpoint, vehicle_attitude_setpoint (when the caller passes the step's attitude/thrust
-command), failsafe_flags, camera_capture. Timestamps are simulation microseconds (PX4 SITL in lockstep logs
-simulation time too). Samples whose time does not advance (a reset Vehicle) are skipped: one file, one clock.
+battery_status, trajectory_setpoint, vehicle_attitude_setpoint (the step's attitude/thrust command: the
+autopilot's output, or the one the caller passes), failsafe_flags, camera_capture. Timestamps are simulation
+microseconds (PX4 SITL in lockstep logs simulation time too). Samples whose time does not advance (a reset Vehicle) are skipped: one file, one clock.
 
 Each topic is logged at most at its rate (simulation time), vehicle_status and failsafe_flags also at every change.
 """
@@ -229,8 +229,10 @@ class FlightLog:
     def step(
         self, state: EavState, autopilot: Autopilot, attitude_setpoint: EavCommand | None = None
     ) -> None:
-        """Log what is due at `state.time_s`. `attitude_setpoint`: the command the autopilot gave this step (the
-        app's Vehicle.step does not expose it; a caller that has it gets vehicle_attitude_setpoint)."""
+        """Log what is due at `state.time_s`. `attitude_setpoint`: the attitude/thrust command that flew this step
+        (a pilot's own command when it bypassed the autopilot); None: the autopilot's last output, when it has one."""
+        if attitude_setpoint is None:
+            attitude_setpoint = getattr(autopilot, "last_command", None)
         now_s = float(state.time_s)
         us = _us(now_s)
         if us <= self._last_us:

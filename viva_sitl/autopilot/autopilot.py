@@ -101,6 +101,9 @@ class Autopilot:
         self.inside = inside
         self.ctx = FlightContext(params, eav, inside)
         self.failures = Failures()  # injected failures (inject_failure): read where each one acts
+        self.last_command: EavCommand | None = (
+            None  # what update() returned last (the run log's attitude setpoint)
+        )
         self.commands = 0  # flight commands received (arm ... mission_start): a pilot's actions, counted
         self.ctx.sync_sim_params_from(eav)
         self.tasks = FlightTasks(self.ctx)
@@ -491,6 +494,7 @@ class Autopilot:
             mission.payload.append(PayloadAction("capture_once"))
         ctx.battery.update(dt, cmd.thrust_n / eav.hover_thrust_n, ctx.armed, ctx.battery_cfg())
         self._check_battery()
+        self.last_command = cmd
         return cmd
 
     def _first_state(self, state: EavState) -> None:

@@ -433,10 +433,11 @@ def render_html(doc: dict[str, Any], out_dir: Path) -> str:
             f"<a href='{d}/scenario.json'>scenario</a>"
             + (f" <a href='{d}/telemetry.tlog'>tlog</a>" if (out_dir / d / "telemetry.tlog").exists() else "")
             + (f" <a href='{d}/vac.mp4'>video</a>" if (out_dir / d / "vac.mp4").exists() else "")
+            + (f" <a href='{d}/log.ulg'>ulog</a>" if (out_dir / d / "log.ulg").exists() else "")
             + "</td></tr>"
         )  # fmt: skip
     parts.append("</table></div>")
-    parts.extend(_all_trials_table(rows))
+    parts.extend(_all_trials_table(rows, out_dir))
     parts.append("</body></html>")
     return "\n".join(parts)
 
@@ -494,14 +495,14 @@ def _cell(r: Row, key: str) -> str:
     return html.escape(str(v))
 
 
-def _all_trials_table(rows: list[Row]) -> list[str]:
+def _all_trials_table(rows: list[Row], out_dir: Path | None = None) -> list[str]:
     out = ["<h2>All trials</h2><p>One row per trial (as in <a href='results.csv'>results.csv</a>; units in the "
            "column names). <i>n/a</i>: the footage's ground truth cannot answer that score (none of that kind, "
            "or the class was not annotated); —: it does not apply (no touchdown, nobody of that class in the "
            "footage); <i>unscored</i>: no check failed but one was n/a (<code>criterion_unavailable</code> says "
            "which).</p><div class='scroll'><table id='trials'><tr>"
            + "".join(f"<th{' class=l' if k in _LEFT else ''} data-col='{k}'>{k}</th>" for k in TRIAL_TABLE_COLUMNS)
-           + "</tr>"]  # fmt: skip
+           + "<th class='l' data-col='ulog'>ulog</th></tr>"]  # fmt: skip
     for r in rows:
         ok = r.get("success")
         cells = []
@@ -510,6 +511,11 @@ def _all_trials_table(rows: list[Row]) -> list[str]:
             if k == "success" and ok is not None:
                 c = " class='ok'" if ok else " class='bad'"
             cells.append(f"<td{c}>{_cell(r, k)}</td>")
+        ulog = f"trials/{int(r['trial']):04d}/log.ulg"  # the trial's PX4 ULog, linked when it was written
+        has_ulog = out_dir is not None and (out_dir / ulog).exists()
+        cells.append(
+            f"<td class='l'><a href='{ulog}'>log.ulg</a></td>" if has_ulog else "<td class='l'>—</td>"
+        )
         out.append(f"<tr data-trial='{int(r['trial'])}'>" + "".join(cells) + "</tr>")
     out.append("</table></div>")
     return out

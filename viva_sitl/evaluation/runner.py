@@ -9,6 +9,7 @@ vehicle keeps its own footage clock, Simulator.footage_offset_s, so sharing a so
 
 from __future__ import annotations
 
+import logging
 import time
 import traceback
 from pathlib import Path
@@ -22,10 +23,12 @@ from viva_sitl.evaluation.ends import TrialEnd
 from viva_sitl.evaluation.episode import Episode, limits_of, scenario_config
 from viva_sitl.evaluation.pilots import Control, Observation, make_pilot
 from viva_sitl.evaluation.spec import Scenario, TrialSpec
+from viva_sitl.flightlog import LOG_FILE, FlightLog
 from viva_sitl.footage import FootageSource, open_footage
 from viva_sitl.vehicle import Vehicle
 from viva_sitl.world import WorldModel, world_from_source
 
+log = logging.getLogger(__name__)
 _SOURCES: dict[str, FootageSource] = {}
 _WORLDS: dict[str, WorldModel] = {}
 
@@ -51,8 +54,8 @@ def run_inprocess_trial(
     video: bool = False,
     wall_limit_s: float | None = None,
 ) -> dict[str, Any]:
-    """Fly one trial; write trial_trajectory.csv, events.jsonl, end.json (+ vac.mp4 with `video`) to trial_dir; return
-    the result row (scores). Never raises for a pilot's fault: the trial ends with end = pilot_error."""
+    """Fly one trial; write trial_trajectory.csv, events.jsonl, end.json, log.ulg (+ vac.mp4 with `video`) to
+    trial_dir; return the result row (scores). Never raises for a pilot's fault: the trial ends with end = pilot_error."""
     wall0 = time.perf_counter()
     trial_dir.mkdir(parents=True, exist_ok=True)
     pilot = make_pilot(pilot_name)
@@ -69,6 +72,8 @@ def run_inprocess_trial(
     frame_period_s = 1.0 / (frame_hz if frame_hz > 0 else 30.0)
     next_frame_s = 0.0
     writer: cv2.VideoWriter | None = None
+    # the trial's PX4 ULog (log.ulg), as `viva-sitl run` writes one
+    flog = _open_flight_log(trial_dir, vehicle)
     frame = None
     cmd: EavCommand | None = None
     try:
@@ -109,14 +114,26 @@ def run_inprocess_trial(
                     ep.end(TrialEnd.WALL_TIMEOUT, f"trial took more than {wall_limit_s:g} s of wall time")
                     break
             ep.step(cmd)
+            if flog is not None:
+                flog.step(vehicle.state, ap, cmd)
             left -= 1
     finally:
         if writer is not None:
             writer.release()
+        if flog is not None:
+            flog.close()
     ep.log.write(trial_dir)
     row = ep.row(world, spec)
     row["wall_s"] = round(time.perf_counter() - wall0, 3)
     return row
+
+
+def _open_flight_log(trial_dir: Path, vehicle: Vehicle) -> FlightLog | None:
+    try:
+        return FlightLog(trial_dir / LOG_FILE, vehicle.geo, vehicle.params, start_time_s=vehicle.time_s)
+    except OSError as exc:  # the trial goes on without a ULog
+        log.warning("cannot write %s: %s (no ULog of this trial)", trial_dir / LOG_FILE, exc.strerror or exc)
+        return None
 
 
 def _write_video(writer: cv2.VideoWriter | None, path: Path, img: Any, fps: float) -> cv2.VideoWriter:

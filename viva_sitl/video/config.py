@@ -47,6 +47,10 @@ class VideoConfig:
     )
     sdp_dir: str = "."  # SDP files are written here (viva-sitl-h264-<port>.sdp, viva-sitl-mjpeg-<port>.sdp)
     stamp_counter: bool = False  # paint the frame counter as a barcode in the top-left corner (see stamp.py)
+    # RTSP server of the H.264 stream (video/rtsp.py): rtsp://rtsp_host:rtsp_port/vac, same encode as the RTP stream
+    rtsp: bool = False
+    rtsp_port: int = 8554  # TCP port (0 = any free port); instance i serves on rtsp_port + i
+    rtsp_host: str = "127.0.0.1"  # address the RTSP server binds ("0.0.0.0": every interface)
 
     def __post_init__(self) -> None:
         if isinstance(
@@ -73,6 +77,10 @@ class VideoConfig:
                 f"video.h264_port {self.h264_port} and video.mjpeg_port {self.mjpeg_port} overlap "
                 "(each RTP stream also uses port + 1 for RTCP)"
             )
+        if not (0 <= self.rtsp_port <= 65535):
+            raise ValueError(f"video.rtsp_port must be in 0..65535 (0 = any free port), got {self.rtsp_port}")
+        if self.rtsp and not self.rtsp_host:
+            raise ValueError("video.rtsp_host must not be empty when rtsp is on")
         if self.frame_socket and not self.frame_socket_endpoint:
             raise ValueError("video.frame_socket_endpoint must not be empty when frame_socket is on")
         if not (1 <= self.fps <= 240):
@@ -102,7 +110,7 @@ class VideoConfig:
         return self.gop_frames if self.gop_frames > 0 else self.fps
 
     def with_instance(self, instance: int) -> VideoConfig:
-        """The config of vehicle `instance` (0 = unchanged): RTP ports + 4*i, frame-socket TCP port + i.
+        """The config of vehicle `instance` (0 = unchanged): RTP ports + 4*i, frame-socket and RTSP TCP ports + i.
 
         An `ipc://` or `inproc://` frame-socket endpoint gets a "-<i>" suffix instead.
         """
@@ -126,6 +134,7 @@ class VideoConfig:
             mjpeg_port=self.mjpeg_port + RTP_INSTANCE_STRIDE * instance,
             frame_socket_endpoint=endpoint,
             record_path=record,
+            rtsp_port=self.rtsp_port + instance if self.rtsp_port else 0,
         )
 
 

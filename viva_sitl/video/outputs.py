@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import logging
 import os
+from collections.abc import Callable
 from fractions import Fraction
 from pathlib import Path
 from typing import Protocol
@@ -126,9 +127,18 @@ class H264RtpOutput:
         sdp_path: str | Path | None = None,
         end_of_frame_aud: bool = True,
         threads: int = 0,
+        send_rtp: bool = True,
+        packet_sink: Callable[[bytes, int, bool], None] | None = None,
     ) -> None:
         _check_size(width, height, "H.264 RTP")
         self.threads = threads
+        # send_rtp False: encode only, for packet_sink (the RTSP server with the RTP/UDP stream switched off)
+        self.send_rtp = send_rtp
+        if not send_rtp:
+            self.name = "h264_rtsp"
+        # packet_sink(annexb, RTP time at 90 kHz, keyframe): every encoded frame, exactly as it goes out over RTP (AUD and
+        # all), on the encoder's thread; the RTSP server fans these out, so RTP and RTSP share one encode
+        self.packet_sink = packet_sink
         self.end_of_frame_aud = end_of_frame_aud
         self.host, self.port = host, port
         self.width, self.height, self.fps = width, height, fps
@@ -137,8 +147,19 @@ class H264RtpOutput:
         self._clock = PtsClock(fps)
         self._container: av.container.OutputContainer | None = None
         self._stream: av.VideoStream | None = None
+        self._codec: av.VideoCodecContext | None = None  # send_rtp False: the encoder without a muxer
 
     def open(self) -> None:
+        if not self.send_rtp:
+            codec = av.CodecContext.create("libx264", "w")
+            assert isinstance(codec, av.VideoCodecContext)
+            codec.width, codec.height, codec.pix_fmt = self.width, self.height, "yuv420p"
+            codec.framerate = Fraction(self.fps, 1)
+            codec.time_base = self._clock.time_base
+            codec.bit_rate = self.bitrate_kbps * 1000
+            codec.options = _x264_options(self.preset, self.gop, self.bitrate_kbps, self.threads)
+            self._codec = codec
+            return
         if self.sdp_path is not None:
             self.sdp_path = write_sdp(self.sdp_path, h264_sdp(self.host, self.port, self.fps))
         container = _open_rtp(self.host, self.port, "H.264 RTP")
@@ -150,22 +171,43 @@ class H264RtpOutput:
         self._container, self._stream = container, stream
 
     def write(self, frame: RenderedFrame) -> None:
-        assert self._container is not None and self._stream is not None, "write before open()"
         vf = _i420_frame(frame.image_bgr, self._clock.pts(frame.meta.wall_time_s), self._clock.time_base)
+        if self._codec is not None:
+            for packet in self._codec.encode(vf):
+                self._mux(packet)
+            return
+        assert self._container is not None and self._stream is not None, "write before open()"
         for packet in self._stream.encode(vf):
             self._mux(packet)
 
     def _mux(self, packet: av.Packet) -> None:
-        assert self._container is not None
-        if self.end_of_frame_aud:
-            out = av.Packet(bytes(packet) + END_OF_FRAME_AUD)
-            out.stream = packet.stream
-            out.pts, out.dts, out.time_base = packet.pts, packet.dts, packet.time_base
-            out.is_keyframe = packet.is_keyframe
-            packet = out
-        self._container.mux(packet)
+        sink = self.packet_sink
+        if self.end_of_frame_aud or sink is not None:
+            data = bytes(packet) + END_OF_FRAME_AUD if self.end_of_frame_aud else bytes(packet)
+            if sink is not None:
+                tb = packet.time_base or self._clock.time_base
+                sink(data, round((packet.pts or 0) * tb * 90_000), bool(packet.is_keyframe))
+            if self._container is None:
+                return
+            if self.end_of_frame_aud:
+                out = av.Packet(data)
+                out.stream = packet.stream
+                out.pts, out.dts, out.time_base = packet.pts, packet.dts, packet.time_base
+                out.is_keyframe = packet.is_keyframe
+                packet = out
+        if self._container is not None:
+            self._container.mux(packet)
 
     def close(self) -> None:
+        codec = self._codec
+        if codec is not None:
+            self._codec = None
+            try:
+                for packet in codec.encode(None):
+                    self._mux(packet)
+            except (av.FFmpegError, ValueError) as exc:
+                log.debug("H.264 flush: %s", exc)
+            return
         container, stream = self._container, self._stream
         if container is None or stream is None:
             return

@@ -30,6 +30,7 @@ from viva_sitl.frame import RenderedFrame
 from viva_sitl.video.config import VideoConfig
 from viva_sitl.video.frame_socket import FramePublisher
 from viva_sitl.video.outputs import H264RtpOutput, MjpegRtpOutput, Mp4Recorder, VideoOutput
+from viva_sitl.video.rtsp import RtspServer
 from viva_sitl.video.stamp import stamp_counter, strip_size_px
 
 log = logging.getLogger(__name__)
@@ -142,7 +143,11 @@ class VideoPipeline:
         outputs: list[VideoOutput] = []
         self._sdp: dict[str, Path] = {}
         sdp_dir = Path(config.sdp_dir)
-        if config.h264_rtp:
+        # the RTSP server gets the H.264 output's packets (one encode for both); without RTP the output only encodes
+        self.rtsp: RtspServer | None = None
+        if config.rtsp:
+            self.rtsp = RtspServer(config.rtsp_host, config.rtsp_port, fps=config.fps)
+        if config.h264_rtp or self.rtsp is not None:
             h264 = H264RtpOutput(
                 config.host,
                 config.h264_port,
@@ -152,9 +157,11 @@ class VideoPipeline:
                 bitrate_kbps=config.bitrate_kbps,
                 gop=config.gop,
                 preset=config.x264_preset,
-                sdp_path=sdp_dir / f"viva-sitl-h264-{config.h264_port}.sdp",
+                sdp_path=sdp_dir / f"viva-sitl-h264-{config.h264_port}.sdp" if config.h264_rtp else None,
                 end_of_frame_aud=config.h264_end_of_frame_aud,
                 threads=config.x264_threads,
+                send_rtp=config.h264_rtp,
+                packet_sink=self.rtsp.feed if self.rtsp is not None else None,
             )
             outputs.append(h264)
         if config.mjpeg_rtp:
@@ -212,6 +219,8 @@ class VideoPipeline:
             if self._running or self._stopped:
                 raise RuntimeError("VideoPipeline can be started once")
             opened: list[VideoOutput] = []
+            if self.rtsp is not None:
+                self.rtsp.start()  # first: a taken RTSP port fails the start before any output is opened
             try:
                 for out in self._outputs:
                     out.open()
@@ -222,6 +231,8 @@ class VideoPipeline:
                         out.close()
                     except Exception:
                         log.exception("video output %s: close after failed start", out.name)
+                if self.rtsp is not None:
+                    self.rtsp.stop()
                 raise
             for out in self._outputs:
                 sdp = getattr(out, "sdp_path", None)
@@ -239,6 +250,8 @@ class VideoPipeline:
             self.config.fps,
             ", ".join(str(p) for p in self._sdp.values()) or "none",
         )
+        if self.rtsp is not None:
+            log.info("video RTSP: %s", self.rtsp.url)
 
     def stop(self, timeout_s: float = 5.0) -> None:
         """Encode what is queued, join the worker threads, close every output (idempotent)."""
@@ -257,6 +270,8 @@ class VideoPipeline:
                 w.output.close()
             except Exception:
                 log.exception("video output %s: close failed", w.output.name)
+        if self.rtsp is not None:
+            self.rtsp.stop()
 
     def __enter__(self) -> VideoPipeline:
         self.start()
@@ -273,6 +288,11 @@ class VideoPipeline:
     def sdp_paths(self) -> dict[str, Path]:
         """SDP files written at start: {"h264": path, "mjpeg": path} for the enabled RTP outputs."""
         return dict(self._sdp)
+
+    @property
+    def rtsp_url(self) -> str | None:
+        """rtsp://host:port/vac when the RTSP server runs (the real port when the config said 0), else None."""
+        return self.rtsp.url if self.rtsp is not None else None
 
     @property
     def frame_socket_endpoint(self) -> str | None:
@@ -328,7 +348,7 @@ class VideoPipeline:
         medians = [s["write_ms_median"] for s in per.values() if not math.isnan(s["write_ms_median"])]
         if self.publisher is not None and self.publisher.name in per:
             per[self.publisher.name]["would_block"] = self.publisher.would_block
-        return {
+        out = {
             "submitted": self.submitted,
             "rejected": self.rejected,
             "sent": sent,
@@ -337,6 +357,9 @@ class VideoPipeline:
             "encode_ms_median": max(medians) if medians else math.nan,
             "outputs": per,
         }
+        if self.rtsp is not None:
+            out["rtsp"] = self.rtsp.stats()
+        return out
 
 
 class FrameScheduler:
