@@ -30,7 +30,6 @@ import fcntl
 import hashlib
 import json
 import logging
-import os
 import shutil
 import time
 from collections.abc import Iterator
@@ -172,10 +171,9 @@ def list_caches(root: Path) -> list[CacheEntry]:
             info = json.loads((d / SOURCE_INFO).read_text(encoding="utf-8"))
         except (OSError, ValueError):
             info = {}
-        used = d / LAST_USED
         out.append(
             CacheEntry(
-                d.name, d, _dir_bytes(d), used.stat().st_mtime if used.exists() else d.stat().st_mtime,
+                d.name, d, _dir_bytes(d), _last_used(d),
                 str(info.get("source", "?")), int(info.get("frames", 0)),
             )
         )  # fmt: skip
@@ -214,10 +212,21 @@ def evict(root: Path, max_bytes: int, keep: Path | None = None) -> list[CacheEnt
     return gone
 
 
+def _last_used(folder: Path) -> float:
+    """When the cache was last used (s since the epoch): the time _touch wrote, else the folder's mtime."""
+    try:
+        return int((folder / LAST_USED).read_text(encoding="ascii").strip()) / 1e9
+    except (OSError, ValueError):
+        try:
+            return folder.stat().st_mtime
+        except OSError:
+            return 0.0
+
+
 def _touch(folder: Path) -> None:
+    # the time in the file, in ns: file mtimes are coarse (kernel ticks), two uses a few ms apart would tie
     with contextlib.suppress(OSError):
-        (folder / LAST_USED).touch()
-        os.utime(folder / LAST_USED)
+        (folder / LAST_USED).write_text(str(time.time_ns()), encoding="ascii")
 
 
 def ensure_cache(path: Path, frames: object, frame_count: int, size_px: tuple[int, int], fps: float,
