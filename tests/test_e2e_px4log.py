@@ -152,6 +152,8 @@ def test_accel_waits_for_sides_that_never_come_and_fails_as_px4_mag_is_cancelled
     _wait_text(peer, "[cal] pending: back front left right up", 30, t0)
     busy = peer.command_long(CMD_PREFLIGHT_CALIBRATION, [1])  # gyro while accel runs
     assert busy.result == TEMPORARILY_REJECTED, busy
+    arm = peer.command_long(400, [1])  # MAV_CMD_COMPONENT_ARM_DISARM while calibrating: PX4 refuses
+    assert arm.result == TEMPORARILY_REJECTED, arm
     _wait_text(peer, "[cal] calibration failed: timeout: no motion", 60, t0)
     texts = _texts(peer, t0)
     order = ["[cal] calibration started: 2 accel", "[cal] down orientation detected", "[cal] progress <17>",

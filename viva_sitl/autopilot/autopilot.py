@@ -194,6 +194,15 @@ class Autopilot:
         return ev
 
     # --- commands (Commander) ----------------------------------------------------------
+    @property
+    def calibrating(self) -> bool:
+        """True while a sensor calibration runs: arming is refused (TEMPORARILY_REJECTED), as PX4 does."""
+        return self.ctx.calibrating
+
+    @calibrating.setter
+    def calibrating(self, on: bool) -> None:
+        self.ctx.calibrating = on
+
     def prearm_check(self, now_s: float) -> Outcome:
         """ACCEPTED when arming would be allowed now (SYS_STATUS pre-arm bit), else the refusal."""
         return self.commander.prearm_check(now_s)

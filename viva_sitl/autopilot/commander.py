@@ -93,6 +93,8 @@ class Commander:
             return denied("Arming denied: battery too low")
         if ctx.sensor_faults:
             return denied(f"Arming denied: {ctx.sensor_faults[0]}")
+        if ctx.calibrating:
+            return rejected("Arming denied: calibration in progress")
         mode = ctx.mode
         if mode in POSITION_MODES and not ctx.position_valid:
             return denied(f"Arming denied: {MODE_NAMES[mode]} mode requires a global position")

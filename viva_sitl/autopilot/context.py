@@ -53,6 +53,7 @@ class FlightContext:
     # invalid (GPS lost past the dead-reckoning time); the arming refusals the failed sensors cause
     position_valid: bool = True
     sensor_faults: tuple[str, ...] = ()
+    calibrating: bool = False  # a sensor calibration runs (mavlink/calibration.py): arming is refused, as PX4
     _eav_rev: int = -1
     _eav_cached: EavParams | None = None
     _bat_rev: int = -1

@@ -181,6 +181,7 @@ class CalibrationWorker:
     async def _run(self, kind: str, body: Callable[[], Awaitable[None]]) -> None:
         self._say(f"[cal] calibration started: 2 {kind}")
         outcome = "done"
+        self.vehicle.autopilot.calibrating = True
         try:
             await body()
             self._say(f"[cal] calibration done: {kind}")
@@ -197,6 +198,7 @@ class CalibrationWorker:
             outcome = "failed"
             self._say(f"[cal] calibration failed: {kind}", Severity.CRITICAL)
         finally:
+            self.vehicle.autopilot.calibrating = False
             self.completed.append((kind, outcome))
             self._cancel = False
 
