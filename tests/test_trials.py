@@ -292,7 +292,7 @@ def test_results_of_schema_v1_still_read(tmp_path: Path) -> None:
     row = read_results(tmp_path)["rows"][0]
     assert row["min_dist_object_m"] is None and row["min_dist_person_m"] == 1.0  # unavailable, not zero
     (tmp_path / "results.json").write_text(json.dumps({"schema": "vivasitl.trials.v0", "rows": []}))
-    with pytest.raises(ValueError, match="schema 'vivasitl.trials.v0', expected vivasitl.trials.v3"):
+    with pytest.raises(ValueError, match="schema 'vivasitl.trials.v0', expected vivasitl.trials.v4"):
         read_results(tmp_path)
 
 
@@ -366,7 +366,7 @@ def test_inprocess_pilots_end_to_end_pool_determinism_and_single_trial(tmp_path:
                      (camp.out_dir / "trials" / f"{s.index:04d}" / "events.jsonl").read_text().splitlines()]  # fmt: skip
             assert kinds.index("land_now") < kinds.index("touchdown") < kinds.index("end")
         doc = json.loads((camp.out_dir / "results.json").read_text())
-        assert doc["schema"] == "vivasitl.trials.v3" and doc["scenarios"] == [s.to_dict() for s in scen]
+        assert doc["schema"] == "vivasitl.trials.v4" and doc["scenarios"] == [s.to_dict() for s in scen]
         assert list(_csv_rows(camp.out_dir / "results.csv")[0]) == list(COLUMNS)
         assert "data:image/png;base64," in (camp.out_dir / "report.html").read_text()
     for r, s in zip(d.ordered_rows(), scen, strict=True):  # descend lands where it was told to land
