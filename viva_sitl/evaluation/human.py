@@ -78,7 +78,8 @@ def fly_trial(
     if (out / "results.json").exists():
         raise ValueError(f"{out} holds a result already: give this flight its own output directory (-o)")
     out.mkdir(parents=True, exist_ok=True)
-    flown = dataclasses.replace(spec, speed=speed)
+    # a person flies on the wall clock: there is no pilot process whose computing lockstep could wait for
+    flown = dataclasses.replace(spec, speed=speed, timing="realtime")
     tdir = trial_dir(out, sc.index)
     tdir.mkdir(parents=True, exist_ok=True)
     sc.write(tdir / "scenario.json")
