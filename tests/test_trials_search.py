@@ -1,0 +1,116 @@
+"""`viva-sitl trials search`: real in-process trials of `descend` on the synthetic field (small budgets)."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import subprocess
+import sys
+import tomllib
+from pathlib import Path
+
+import pytest
+
+from viva_sitl.evaluation.cli import trials_main
+from viva_sitl.evaluation.search import fixed_spec, nominal_point, space_of, spec_to_toml
+from viva_sitl.evaluation.spec import draw_scenarios, footage_box, load_spec, spec_from_dict
+
+REPO = Path(__file__).resolve().parents[1]
+SPEC = REPO / "configs" / "trials" / "synthetic_emergency.toml"
+
+
+def _cli(*args: str, cwd: Path = REPO, timeout: float = 300) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, "-m", "viva_sitl", "trials", *args], cwd=cwd, capture_output=True,
+                          text=True, timeout=timeout)  # fmt: skip
+
+
+def test_space_is_the_specs_free_ranges_and_a_fixed_spec_round_trips_through_toml() -> None:
+    spec = load_spec(SPEC)
+    names = [d.name for d in space_of(spec)]
+    # every [lo, hi] range, the battery failure (probability 0.3: present or not) and its time; nothing fixed
+    assert names == ["failures[0]", "gust_std_m_s", "wind_speed_m_s", "params.MPC_LAND_SPEED", "failures[0].at_s",
+                     "land_at_s", "footage_time_s", "yaw_deg", "wind_dir_deg", "altitude_m", "north_m", "east_m"]  # fmt: skip
+    # the spec itself and a fixed one read back equal from the TOML written
+    back = spec_from_dict(tomllib.loads(spec_to_toml(spec)), "x")
+    assert back == dataclasses.replace(spec, source="x")
+    dims = space_of(spec)
+    boxes = {"synthetic": footage_box("synthetic")}
+    pt = {**nominal_point(dims), "failures[0]": 1, "north_m": 0.9}
+    fs = fixed_spec(spec, pt, dims, 7, boxes)
+    assert fs is not None and fs.n == 1 and fs.seed == 7 and space_of(fs) == []
+    assert fs.north_m == (36.0, 36.0) and fs.wind_speed_m_s == (0.0, 0.0)  # -45 + 0.9 * 90; calm at nominal
+    assert fs.failures[0].probability == 1.0 and fs.failures[0].at_s[0] == fs.failures[0].at_s[1]
+    back = spec_from_dict(tomllib.loads(spec_to_toml(fs)), "y")
+    assert back == dataclasses.replace(fs, source="y")
+    sc = draw_scenarios(back)[0]
+    assert (sc.north_m, sc.east_m, [f.kind for f in sc.failures]) == (36.0, 0.0, ["battery_critical"])
+
+
+def test_bad_input_is_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out = str(tmp_path / "o")
+    fixed = tmp_path / "fixed.toml"
+    fixed.write_text('[trials]\nname = "f"\n[scenario]\nnorth_m = 0.0\neast_m = 0.0\naltitude_m = 20.0\n'
+                     "yaw_deg = 0.0\nwind_dir_deg = 0.0\n")  # fmt: skip
+    cases = [
+        (
+            ["search", str(SPEC), "--pilot", "descend", "--budget", "0", "-o", out],
+            "--budget must be an integer >= 1",
+        ),
+        (["search", str(SPEC), "--pilot", "nosuchmod:Pilot", "--budget", "4", "-o", out], "cannot load"),
+        (
+            ["search", str(SPEC), "--pilot", "python3 my_pilot.py", "--budget", "4", "-o", out],
+            "in-process pilots",
+        ),
+        (
+            ["search", str(fixed), "--pilot", "descend", "--budget", "4", "-o", out],
+            "no free parameters to search",
+        ),
+        (["search", str(tmp_path / "nope.toml"), "--budget", "4", "-o", out], "trial spec not found"),
+    ]
+    for argv, want in cases:
+        assert trials_main(argv) == 2
+        cap = capsys.readouterr()
+        lines = cap.err.strip().splitlines()
+        assert len(lines) == 1 and want in lines[0], (argv, cap.err)
+        assert "Traceback" not in cap.err + cap.out
+    assert not (tmp_path / "o").exists()  # nothing written for a refused search
+
+
+@pytest.mark.slow  # ~40 s: three small searches and one rerun, real trials
+def test_search_finds_descend_failure_reproducible_by_trials_run_and_deterministic(tmp_path: Path) -> None:
+    args = [str(SPEC), "--pilot", "descend", "--budget", "8", "--seed", "0", "--max-failures", "1",
+            "--shrink-budget", "4"]  # fmt: skip
+    r = _cli("search", *args, "-o", str(tmp_path / "a"))
+    assert r.returncode == 0, r.stderr
+    doc = json.loads((tmp_path / "a" / "search.json").read_text())
+    assert doc["search_trials"] == 8 and doc["failures_found"] >= 1 and len(doc["minimal"]) == 1
+    m = doc["minimal"][0]
+    assert m["result"]["success"] is False and m["failed_checks"]
+    failing = tmp_path / "a" / "failure-01.toml"
+    assert str(failing) in r.stdout
+    # the written spec reruns unchanged with `trials run` and fails the same way at the same spot
+    rr = _cli("run", str(failing), "-o", str(tmp_path / "rerun"), "--jobs", "1", "--no-progress")
+    assert rr.returncode == 0, rr.stderr
+    row = json.loads((tmp_path / "rerun" / "results.json").read_text())["rows"][0]
+    assert row["pilot"] == "descend" and row["success"] is False
+    for key in ("end", "criterion_failures", "touchdown_north_m", "touchdown_east_m", "risk_level",
+                "min_dist_person_m"):  # fmt: skip
+        assert row[key] == m["result"][key], key
+    # same seed -> the same bytes, whatever the job count; another seed -> other scenarios
+    r2 = _cli("search", *args, "--jobs", "2", "-o", str(tmp_path / "b"))
+    assert r2.returncode == 0, r2.stderr
+    for name in ("search.json", "failure-01.toml"):
+        a = (tmp_path / "a" / name).read_text().replace(str(tmp_path / "a"), "OUT")
+        b = (tmp_path / "b" / name).read_text().replace(str(tmp_path / "b"), "OUT")
+        assert a == b, name
+    r3 = _cli("search", *args[:-4], "--seed", "1", "--max-failures", "0", "-o", str(tmp_path / "c"))
+    assert r3.returncode == 0, r3.stderr
+    other = json.loads((tmp_path / "c" / "search.json").read_text())
+    assert [t["values"] for t in other["trials"]] != [t["values"] for t in doc["trials"]]
+    # an OUT that holds a search is refused (one line) unless --force
+    r4 = _cli("search", *args, "-o", str(tmp_path / "a"))
+    assert (
+        r4.returncode == 2
+        and "holds a search already" in r4.stderr
+        and len(r4.stderr.strip().splitlines()) == 1
+    )
