@@ -12,11 +12,14 @@ strictly between 0 and 1 (present or not, and its time). A spec with none of the
 Search: the cross-entropy method (CEM), seeded, in this file (numpy only). A candidate is a fixed spec: the spec
 with every range collapsed to the candidate's value, n = 1 and seed = the search seed; it is flown exactly as
 `trials run` would fly that spec (draw_scenario, then campaign.run_one), so a candidate found here is a spec a user
-can rerun unchanged. Generation 0 draws from the spec's own distribution (uniform ranges, the spec's choice and
-failure probabilities); each later generation samples around the elite (the best quarter of every trial flown so
-far, by a failure score): a normal per range in [0, 1]-normalised coordinates (mean and spread smoothed, spread
-never below 0.05 so it keeps exploring) and smoothed frequencies for choices. `method="uniform"` keeps drawing from
-the spec's own distribution (the baseline of bench/bench_search.py).
+can rerun unchanged. Generation 0 (`batch` trials) draws from the spec's own distribution (uniform ranges, the
+spec's choice and failure probabilities); after each generation the elite is the best 10 % (at least 4) of every
+trial flown so far, by a failure score, and the next generation samples from a mixture around it: a random elite
+point, moved by a normal per range in [0, 1]-normalised coordinates (spread: half the elite's, smoothed, never below
+0.05 so it keeps exploring), its choices kept or (probability 0.2) redrawn from the elite's smoothed frequencies.
+A mixture rather than CEM's single normal: failures lie in several places (next to different people, on the road
+ring) and one mean between two of them lands on neither. `method="uniform"` keeps drawing from the spec's own
+distribution (the baseline of bench/bench_search.py).
 
 Failure score (higher = worse; > 0 exactly when a check of the spec's criterion failed): per check of the
 criterion a normalised violation -- not landed: 1; touchdown speed v: v / max - 1; distance d to people / vehicles /
@@ -60,7 +63,8 @@ SEARCH_SCHEMA = "vivasitl.search.v1"
 METHODS = ("cem", "uniform")
 _SIGMA_MIN = 0.05  # normalised spread floor: CEM never stops exploring around its elite
 _ALPHA = 0.7  # smoothing of the CEM update
-_ELITE = 0.25  # elite fraction of every trial flown so far
+_ELITE = 0.1  # elite fraction of every trial flown so far (at least _ELITE_MIN)
+_ELITE_MIN = 4
 
 
 @dataclass(frozen=True)
@@ -331,8 +335,8 @@ class _Cem:
         import numpy as np
 
         self.dims, self.rng = dims, rng
-        self.mu = {d.name: 0.5 for d in dims if d.kind == "real"}
-        self.sigma = {d.name: 0.5 for d in dims if d.kind == "real"}
+        self.sigma = {d.name: 0.25 for d in dims if d.kind == "real"}
+        self.elite: list[Point] = []
         self.p = {d.name: np.array(d.prior, float) for d in dims if d.kind == "choice"}
         self.fitted = False
 
@@ -348,27 +352,32 @@ class _Cem:
         return pt
 
     def sample(self) -> Point:
-        import numpy as np
-
+        """Around one elite point (drawn at random): a normal per range with the elite's (smoothed, halved)
+        spread; its choices, or with probability 0.2 one drawn from the elite's smoothed frequencies. A mixture
+        keeps several failure regions apart (one mean between two crowds would land between them)."""
         if not self.fitted:
             return self.prior_sample()
+        centre = self.elite[int(self.rng.integers(len(self.elite)))]
         pt: Point = {}
         for d in self.dims:
             if d.kind == "real":
-                pt[d.name] = float(np.clip(self.rng.normal(self.mu[d.name], self.sigma[d.name]), 0.0, 1.0))
+                x = self.rng.normal(centre[d.name], self.sigma[d.name])
+                pt[d.name] = float(min(1.0, max(0.0, x)))
             else:
-                pt[d.name] = int(self.rng.choice(len(d.choices), p=self.p[d.name]))
+                fresh = self.rng.uniform() < 0.2
+                pick = int(self.rng.choice(len(d.choices), p=self.p[d.name]))
+                pt[d.name] = pick if fresh else int(centre[d.name])
         return pt
 
     def update(self, elite: list[Point]) -> None:
         import numpy as np
 
         a = _ALPHA if self.fitted else 1.0
+        self.elite = list(elite)
         for d in self.dims:
             if d.kind == "real":
                 xs = np.array([pt[d.name] for pt in elite])
-                self.mu[d.name] = a * float(xs.mean()) + (1 - a) * self.mu[d.name]
-                sd = a * float(xs.std()) + (1 - a) * self.sigma[d.name]
+                sd = a * 0.5 * float(xs.std()) + (1 - a) * self.sigma[d.name]
                 self.sigma[d.name] = max(_SIGMA_MIN, sd)
             else:
                 freq = np.bincount([pt[d.name] for pt in elite], minlength=len(d.choices)) / len(elite)
@@ -486,7 +495,7 @@ def search(
                     valid = [e for e in res.evaluations if e.score is not None]
                     if valid:
                         ranked = sorted(valid, key=lambda e: (-(e.score or 0.0), e.index))
-                        n_elite = max(2, math.ceil(_ELITE * len(valid)))
+                        n_elite = max(_ELITE_MIN, math.ceil(_ELITE * len(valid)))
                         cem.update([e.point for e in ranked[:n_elite]])
                 gen += 1
                 del evs
@@ -711,11 +720,18 @@ def search_main(args: Any) -> int:
     out = Path(args.out)
     if (out / "search.json").exists() and not args.force:
         raise ValueError(f"{out} holds a search already (search.json): give this one its own -o, or --force")
-    res = search(
-        spec, pilot, args.budget, seed=args.seed, method=args.method, batch=args.batch,
-        max_failures=args.max_failures, shrink_budget=args.shrink_budget, jobs=args.jobs,
-        progress=lambda line: print(line, file=sys.stderr, flush=True),
-    )  # fmt: skip
+    try:
+        res = search(
+            spec, pilot, args.budget, seed=args.seed, method=args.method, batch=args.batch,
+            max_failures=args.max_failures, shrink_budget=args.shrink_budget, jobs=args.jobs,
+            progress=lambda line: print(line, file=sys.stderr, flush=True),
+        )  # fmt: skip
+    except KeyboardInterrupt:
+        print(
+            f"\ninterrupted: nothing written to {out} (the same command flies the same trials again)",
+            file=sys.stderr,
+        )
+        return 130
     if args.force:
         for old in out.glob("failure-*.toml"):
             old.unlink()
