@@ -114,3 +114,26 @@ def test_search_finds_descend_failure_reproducible_by_trials_run_and_determinist
         and "holds a search already" in r4.stderr
         and len(r4.stderr.strip().splitlines()) == 1
     )
+
+
+def test_failure_score_is_positive_exactly_when_a_check_fails() -> None:
+    from viva_sitl.evaluation.scoring import COLUMNS
+    from viva_sitl.evaluation.search import failure_score
+
+    spec = load_spec(SPEC)  # landed, touchdown < 1 m/s, >= 5 m from people, risk <= 2
+    base = {c: None for c in COLUMNS}
+    ok = {**base, "end": "landed", "landed": True, "touchdown_speed_m_s": 0.6, "gt_objects": True, "gt_risk": True,
+          "persons_present": True, "min_dist_person_m": 12.0, "dist_person_m": 12.5, "risk_level": 1}  # fmt: skip
+    s_ok, failed = failure_score(ok, spec)
+    assert s_ok is not None and s_ok < 0 and failed == ()
+    closer, _ = failure_score({**ok, "min_dist_person_m": 6.0}, spec)
+    assert closer is not None and s_ok < closer < 0  # a near miss ranks above a clear pass
+    for change, check in (({"min_dist_person_m": 3.0}, "min_dist_person_m"), ({"risk_level": 4}, "risk_level"),
+                          ({"touchdown_speed_m_s": 1.5}, "touchdown_speed_m_s"),
+                          ({"end": "timeout", "landed": False, "touchdown_speed_m_s": None}, "landed")):  # fmt: skip
+        s, failed = failure_score({**ok, **change}, spec)
+        assert s is not None and s > 0 and check in failed, change
+    assert failure_score({**ok, "end": "trial_error"}, spec) == (
+        None,
+        (),
+    )  # the harness failed, not the pilot

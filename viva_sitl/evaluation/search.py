@@ -18,7 +18,9 @@ trial flown so far, by a failure score, and the next generation samples from a m
 point, moved by a normal per range in [0, 1]-normalised coordinates (spread: half the elite's, smoothed, never below
 0.05 so it keeps exploring), its choices kept or (probability 0.2) redrawn from the elite's smoothed frequencies.
 A mixture rather than CEM's single normal: failures lie in several places (next to different people, on the road
-ring) and one mean between two of them lands on neither. `method="uniform"` keeps drawing from the spec's own
+ring) and one mean between two of them lands on neither. A failure found 3 times (the same failed checks, < 0.2
+apart: RMS over the normalised dims) leaves the elite, so the search moves on to other failures rather than flying
+the same one again. `method="uniform"` keeps drawing from the spec's own
 distribution (the baseline of bench/bench_search.py).
 
 Failure score (higher = worse; > 0 exactly when a check of the spec's criterion failed): per check of the
@@ -65,6 +67,7 @@ _SIGMA_MIN = 0.05  # normalised spread floor: CEM never stops exploring around i
 _ALPHA = 0.7  # smoothing of the CEM update
 _ELITE = 0.1  # elite fraction of every trial flown so far (at least _ELITE_MIN)
 _ELITE_MIN = 4
+_SPENT = 3  # a failure found this many times is left out of the elite
 
 
 @dataclass(frozen=True)
@@ -120,12 +123,15 @@ class SearchResult:
     def search_evals(self) -> list[Evaluation]:
         return [e for e in self.evaluations if e.phase == "search"]
 
-    def trials_to_failures(self, k: int) -> int | None:
-        """Search trials flown until the k-th failure was found (None: fewer than k found)."""
-        found = 0
+    def trials_to_failures(self, k: int, distinct: bool = False) -> int | None:
+        """Search trials flown until the k-th failure (distinct: the k-th that pick_distinct keeps) was found
+        (None: fewer than k found)."""
+        dims = space_of(self.spec)
+        found: list[Evaluation] = []
         for n, e in enumerate(self.search_evals, 1):
-            found += e.failed
-            if found >= k:
+            if e.failed and (not distinct or _is_new(e, found, dims)):
+                found.append(e)
+            if len(found) >= k:
                 return n
         return None
 
@@ -420,10 +426,12 @@ def search(
     shrink_steps: int = 3,
     shrink_budget: int = 40,
     stop_after: int | None = None,
+    stop_distinct: bool = False,
     jobs: int = 1,
     progress: Callable[[str], None] | None = None,
 ) -> SearchResult:
-    """Fly up to `budget` search trials (stop early after `stop_after` failures), then shrink up to `max_failures`
+    """Fly up to `budget` search trials (stop early after `stop_after` failures, distinct ones with
+    `stop_distinct`), then shrink up to `max_failures`
     distinct failures (each with up to `shrink_budget` more trials). Deterministic in (spec, pilot, seed, method,
     batch, ...): the job count changes nothing but the wall time."""
     import tempfile
@@ -489,10 +497,11 @@ def search(
                 evs = fly(draw(min(batch, budget - len(res.evaluations))), "search", gen)
                 found = sum(e.failed for e in res.evaluations)
                 say(f"generation {gen}: {len(res.evaluations)}/{budget} trials, {found} failure(s)")
-                if stop_after is not None and found >= stop_after:
+                if stop_after is not None and res.trials_to_failures(stop_after, stop_distinct) is not None:
                     break
                 if method == "cem":
-                    valid = [e for e in res.evaluations if e.score is not None]
+                    spent = _spent(res, dims)
+                    valid = [e for e in res.evaluations if e.score is not None and e.index not in spent]
                     if valid:
                         ranked = sorted(valid, key=lambda e: (-(e.score or 0.0), e.index))
                         n_elite = max(_ELITE_MIN, math.ceil(_ELITE * len(valid)))
@@ -509,19 +518,40 @@ def search(
     return res
 
 
+def _same(a: Evaluation, b: Evaluation, dims: list[Dim]) -> bool:
+    """The same failure: the same failed checks, less than 0.2 apart (RMS over the normalised dims)."""
+    return set(a.failed_checks) == set(b.failed_checks) and _dist(a.point, b.point, dims) < 0.2
+
+
+def _is_new(e: Evaluation, found: list[Evaluation], dims: list[Dim]) -> bool:
+    return not any(_same(e, o, dims) for o in found)
+
+
 def pick_distinct(evals: list[Evaluation], dims: list[Dim], k: int) -> list[Evaluation]:
     """Up to k failures in the order found, each with new failed checks or >= 0.2 (normalised) from the others."""
     out: list[Evaluation] = []
     for e in evals:
         if len(out) >= k:
             break
-        if not e.failed:
-            continue
-        if all(
-            set(e.failed_checks) != set(o.failed_checks) or _dist(e.point, o.point, dims) >= 0.2 for o in out
-        ):
+        if e.failed and _is_new(e, out, dims):
             out.append(e)
     return out
+
+
+def _spent(res: SearchResult, dims: list[Dim]) -> set[int]:
+    """Failures whose failure has been found _SPENT times: left out of the elite, so the search moves on to other
+    failures instead of flying the same one again (a niche per distinct failure)."""
+    niches: list[list[Evaluation]] = []
+    for e in res.search_evals:
+        if not e.failed:
+            continue
+        for nb in niches:
+            if _same(e, nb[0], dims):
+                nb.append(e)
+                break
+        else:
+            niches.append([e])
+    return {e.index for nb in niches if len(nb) >= _SPENT for e in nb}
 
 
 def _dist(a: Point, b: Point, dims: list[Dim]) -> float:
