@@ -18,8 +18,8 @@ trial flown so far, by a failure score, and the next generation samples from a m
 point, moved by a normal per range in [0, 1]-normalised coordinates (spread: half the elite's, smoothed, never below
 0.05 so it keeps exploring), its choices kept or (probability 0.2) redrawn from the elite's smoothed frequencies.
 A mixture rather than CEM's single normal: failures lie in several places (next to different people, on the road
-ring) and one mean between two of them lands on neither. A failure found 3 times (the same failed checks, < 0.2
-apart: RMS over the normalised dims) leaves the elite, so the search moves on to other failures rather than flying
+ring) and one mean between two of them lands on neither. A failure found 3 times (the same failed checks, touchdown
+-- else start -- within 10 m: the same place) leaves the elite, so the search moves on to other failures rather than flying
 the same one again. `method="uniform"` keeps drawing from the spec's own
 distribution (the baseline of bench/bench_search.py).
 
@@ -30,7 +30,7 @@ objects (the smaller of the final-descent minimum and the touchdown distance): (
 ranks by how close it came, e.g. by its distance to people). A failure is `success == false`; trials the harness
 failed (results.INFRA_ENDS: trial_error, worker_died, ...) are not failures of the pilot and never elite.
 
-Shrinking: each failure kept (up to max_failures, distinct by failed checks or by >= 0.2 normalised distance) is
+Shrinking: each failure kept (up to max_failures, distinct: other failed checks or another place) is
 moved towards the spec's nominal scenario one parameter at a time -- failures off, gusts and wind speed to the low
 end, PX4 parameters to their default (clamped into the range), the first listed footage / start, every other range
 to its midpoint -- first all the way, else by bisection (shrink_steps halvings), keeping a move only while the
@@ -67,6 +67,7 @@ _SIGMA_MIN = 0.05  # normalised spread floor: CEM never stops exploring around i
 _ALPHA = 0.7  # smoothing of the CEM update
 _ELITE = 0.1  # elite fraction of every trial flown so far (at least _ELITE_MIN)
 _ELITE_MIN = 4
+SAME_PLACE_M = 10.0  # two failures of the same checks this close (touchdown, else start) are the same failure
 _SPENT = 3  # a failure found this many times is left out of the elite
 
 
@@ -126,10 +127,9 @@ class SearchResult:
     def trials_to_failures(self, k: int, distinct: bool = False) -> int | None:
         """Search trials flown until the k-th failure (distinct: the k-th that pick_distinct keeps) was found
         (None: fewer than k found)."""
-        dims = space_of(self.spec)
         found: list[Evaluation] = []
         for n, e in enumerate(self.search_evals, 1):
-            if e.failed and (not distinct or _is_new(e, found, dims)):
+            if e.failed and (not distinct or _is_new(e, found)):
                 found.append(e)
             if len(found) >= k:
                 return n
@@ -500,7 +500,7 @@ def search(
                 if stop_after is not None and res.trials_to_failures(stop_after, stop_distinct) is not None:
                     break
                 if method == "cem":
-                    spent = _spent(res, dims)
+                    spent = _spent(res)
                     valid = [e for e in res.evaluations if e.score is not None and e.index not in spent]
                     if valid:
                         ranked = sorted(valid, key=lambda e: (-(e.score or 0.0), e.index))
@@ -508,7 +508,7 @@ def search(
                         cem.update([e.point for e in ranked[:n_elite]])
                 gen += 1
                 del evs
-            chosen = pick_distinct(res.search_evals, dims, max_failures)
+            chosen = pick_distinct(res.search_evals, max_failures)
             for k, ev in enumerate(chosen, 1):
                 say(f"shrinking failure {k}/{len(chosen)} (trial {ev.index}: {', '.join(ev.failed_checks)})")
                 best = _shrink(ev, dims, spec, seed, boxes, fly, shrink_steps, shrink_budget)
@@ -518,47 +518,58 @@ def search(
     return res
 
 
-def _same(a: Evaluation, b: Evaluation, dims: list[Dim]) -> bool:
-    """The same failure: the same failed checks, less than 0.2 apart (RMS over the normalised dims)."""
-    return set(a.failed_checks) == set(b.failed_checks) and _dist(a.point, b.point, dims) < 0.2
+def _where(e: Evaluation) -> tuple[float, float]:
+    """Where a trial failed: its touchdown point, else (no touchdown) its start."""
+    n, east = e.row.get("touchdown_north_m"), e.row.get("touchdown_east_m")
+    if n is None or east is None:
+        return float(e.values["north_m"]), float(e.values["east_m"])
+    return float(n), float(east)
 
 
-def _is_new(e: Evaluation, found: list[Evaluation], dims: list[Dim]) -> bool:
-    return not any(_same(e, o, dims) for o in found)
+def _same(a: Evaluation, b: Evaluation) -> bool:
+    """The same failure: the same failed checks, at most SAME_PLACE_M apart (touchdown, else start). By outcome,
+    not by scenario parameters: two trials that land beside the same person fail the same way, whatever their
+    gusts or yaw (a distance over every parameter would call them different)."""
+    (an, ae), (bn, be) = _where(a), _where(b)
+    return set(a.failed_checks) == set(b.failed_checks) and math.hypot(an - bn, ae - be) <= SAME_PLACE_M
 
 
-def pick_distinct(evals: list[Evaluation], dims: list[Dim], k: int) -> list[Evaluation]:
-    """Up to k failures in the order found, each with new failed checks or >= 0.2 (normalised) from the others."""
+def _is_new(e: Evaluation, found: list[Evaluation]) -> bool:
+    return not any(_same(e, o) for o in found)
+
+
+def pick_distinct(evals: list[Evaluation], k: int) -> list[Evaluation]:
+    """Up to k failures in the order found, each a new one (_same: other checks, or another place)."""
     out: list[Evaluation] = []
     for e in evals:
         if len(out) >= k:
             break
-        if e.failed and _is_new(e, out, dims):
+        if e.failed and _is_new(e, out):
             out.append(e)
     return out
 
 
-def _spent(res: SearchResult, dims: list[Dim]) -> set[int]:
-    """Failures whose failure has been found _SPENT times: left out of the elite, so the search moves on to other
-    failures instead of flying the same one again (a niche per distinct failure)."""
+def _spent(res: SearchResult) -> set[int]:
+    """Trials left out of the elite: once a failure has been found _SPENT times, every trial that ended at its
+    place (its touchdown, else start, within SAME_PLACE_M: the failures and the near misses around them), so the
+    search moves on to other failures instead of flying the same one again (a niche per distinct failure)."""
     niches: list[list[Evaluation]] = []
     for e in res.search_evals:
         if not e.failed:
             continue
         for nb in niches:
-            if _same(e, nb[0], dims):
+            if _same(e, nb[0]):
                 nb.append(e)
                 break
         else:
             niches.append([e])
-    return {e.index for nb in niches if len(nb) >= _SPENT for e in nb}
-
-
-def _dist(a: Point, b: Point, dims: list[Dim]) -> float:
-    s = 0.0
-    for d in dims:
-        s += (a[d.name] - b[d.name]) ** 2 if d.kind == "real" else float(a[d.name] != b[d.name])
-    return math.sqrt(s / max(1, len(dims)))
+    places = [_where(nb[0]) for nb in niches if len(nb) >= _SPENT]
+    out = set()
+    for e in res.search_evals:
+        n, east = _where(e)
+        if any(math.hypot(n - pn, east - pe) <= SAME_PLACE_M for pn, pe in places):
+            out.add(e.index)
+    return out
 
 
 def _shrink(ev: Evaluation, dims: list[Dim], spec: TrialSpec, seed: int, boxes: dict[str, FootageBox],
