@@ -111,7 +111,7 @@ def main() -> int:
     print()
     for m in ("cem", "uniform"):
         rate = failed[m] / flown[m] if flown[m] else 0.0
-        print(f"{m}: {flown[m]} trials flown in all, {failed[m]} failures ({100 * rate:.1f} %), distinct failures "
+        print(f"{m}: {flown[m]} trials flown in all, {failed[m]} failures ({100 * rate:.1f} %), "
               f"distinct per seed {distinct[m]}, wall {wall[m]:.0f} s ({wall[m] / max(1, flown[m]):.2f} s "
               "per trial)")  # fmt: skip
     print(f"load average before -> after: {load0:.1f} -> {os.getloadavg()[0]:.1f}")
