@@ -137,3 +137,54 @@ def test_failure_score_is_positive_exactly_when_a_check_fails() -> None:
         None,
         (),
     )  # the harness failed, not the pilot
+
+
+def test_search_shrinks_a_found_failure_towards_nominal_and_writes_a_spec_that_draws_it_back(
+    tmp_path: Path,
+) -> None:
+    from viva_sitl.evaluation.search import search, write_search
+
+    spec = load_spec(SPEC)
+    res = search(spec, "descend", 8, seed=0, max_failures=1, shrink_budget=6)
+    assert len(res.search_evals) == 8 and res.trials_to_failures(1) is not None
+    assert len(res.minimal) == 1 and len(res.evaluations) <= 8 + 6
+    found, best = res.evaluations[res.minimal[0]["found_at"]], res.evaluations[res.minimal[0]["minimal"]]
+    assert best.failed and set(best.failed_checks) & set(found.failed_checks)  # still fails the same way
+    dims = space_of(spec)
+    nominal = nominal_point(dims)
+    moved = [d.name for d in dims if best.point[d.name] != found.point[d.name]]
+    assert moved and all(best.point[k] == nominal[k] or abs(best.point[k] - nominal[k]) < abs(found.point[k] - nominal[k])
+                         for k in moved)  # fmt: skip
+    (path,) = write_search(res, tmp_path / "o")
+    back = load_spec(path)
+    assert back.n == 1 and back.pilot == "descend" and space_of(back) == []
+    sc = draw_scenarios(back)[0]
+    vals = best.values
+    assert (sc.north_m, sc.east_m, sc.altitude_m, sc.land_at_s) == (
+        vals["north_m"],
+        vals["east_m"],
+        vals["altitude_m"],
+        vals["land_at_s"],
+    )
+    doc = json.loads((tmp_path / "o" / "search.json").read_text())
+    assert doc["schema"] == "vivasitl.search.v1" and len(doc["trials"]) == len(res.evaluations)
+    assert doc["minimal"][0]["spec"] == "failure-01.toml" and doc["minimal"][0]["result"]["success"] is False
+
+
+def test_an_integer_parameter_is_searched_over_whole_numbers(tmp_path: Path) -> None:
+    p = tmp_path / "int.toml"
+    p.write_text('[trials]\nname = "i"\n[scenario]\nnorth_m = 0.0\neast_m = 0.0\naltitude_m = 20.0\nyaw_deg = 0.0\n'
+                 'wind_dir_deg = 0.0\n[scenario.params]\nBAT1_N_CELLS = [2, 6]\n')  # fmt: skip
+    spec = load_spec(p)
+    dims = space_of(spec)
+    assert [(d.name, d.integer) for d in dims] == [("params.BAT1_N_CELLS", True)]
+    boxes = {"synthetic": footage_box("synthetic")}
+    got = set()
+    for u in (0.0, 0.1, 0.37, 0.5, 0.99, 1.0):
+        fs = fixed_spec(spec, {"params.BAT1_N_CELLS": u}, dims, 0, boxes)
+        assert fs is not None
+        ((name, (lo, hi)),) = fs.params
+        assert lo == hi and lo == int(lo) and 2 <= lo <= 6
+        got.add(lo)
+        assert spec_from_dict(tomllib.loads(spec_to_toml(fs)), "x").params == fs.params  # loads: an integer
+    assert got == {2.0, 3.0, 4.0, 6.0}

@@ -83,6 +83,7 @@ class Dim:
     nominal: float = 0.5  # real: u of the nominal value; choice: its index
     choices: tuple[str, ...] = ()
     prior: tuple[float, ...] = ()
+    integer: bool = False  # an INT32 PX4 parameter: its values are whole numbers
 
 
 Point = dict[str, Any]  # dim name -> u in [0, 1] (real) or choice index (int)
@@ -145,7 +146,7 @@ def _unit(v: float, r: Range) -> float:
 
 def space_of(spec: TrialSpec) -> list[Dim]:
     """The spec's free parameters, in shrinking order (disturbances first, the pose last)."""
-    from viva_sitl.autopilot.params import ParamStore
+    from viva_sitl.autopilot.params import ParamStore, ParamType
 
     dims: list[Dim] = []
     for k, f in enumerate(spec.failures):
@@ -159,7 +160,9 @@ def space_of(spec: TrialSpec) -> list[Dim]:
     store = ParamStore()
     for name, r in spec.params:
         if r[1] > r[0]:
-            dims.append(Dim(f"params.{name}", "real", r[0], r[1], nominal=_unit(float(store.get(name)), r)))
+            integer = store.spec(name).type == ParamType.INT32
+            dims.append(Dim(f"params.{name}", "real", r[0], r[1], nominal=_unit(float(store.get(name)), r),
+                            integer=integer))  # fmt: skip
     for k, f in enumerate(spec.failures):
         if f.probability > 0.0 and f.at_s[1] > f.at_s[0]:
             dims.append(Dim(f"failures[{k}].at_s", "real", f.at_s[0], f.at_s[1]))
@@ -191,7 +194,10 @@ def _r6(x: float) -> float:
 
 def _real(spec: TrialSpec, dims_by: dict[str, Dim], point: Point, key: str, r: Range) -> float:
     if key in dims_by:
-        return _r6(r[0] + point[key] * (r[1] - r[0]))
+        v = r[0] + point[key] * (r[1] - r[0])
+        if dims_by[key].integer:  # the nearest whole number inside the range
+            v = min(math.floor(r[1]), max(math.ceil(r[0]), round(v)))
+        return _r6(v)
     return _r6(r[0])
 
 
