@@ -741,7 +741,9 @@ def add_search_parser(sub: Any) -> None:
     )
     s.add_argument("--budget", type=int, required=True, help="search trials to fly (shrinking flies more)")
     s.add_argument(
-        "--seed", type=nonneg_int, default=0, help="search seed (default 0): same seed, same output"
+        "--seed",
+        type=nonneg_int,
+        help="search seed (default: the spec's trials.seed): same seed, same output",
     )
     s.add_argument("-o", "--out", required=True, help="output directory: failure-NN.toml + search.json")
     s.add_argument("--method", choices=METHODS, default="cem", help="cem (default) | uniform (the baseline)")
@@ -765,11 +767,12 @@ def search_main(args: Any) -> int:
     spec = load_spec(args.spec)
     pilot = args.pilot or spec.pilot
     out = Path(args.out)
+    seed = spec.seed if args.seed is None else args.seed
     if (out / "search.json").exists() and not args.force:
         raise ValueError(f"{out} holds a search already (search.json): give this one its own -o, or --force")
     try:
         res = search(
-            spec, pilot, args.budget, seed=args.seed, method=args.method, batch=args.batch,
+            spec, pilot, args.budget, seed=seed, method=args.method, batch=args.batch,
             max_failures=args.max_failures, shrink_budget=args.shrink_budget, jobs=args.jobs,
             progress=lambda line: print(line, file=sys.stderr, flush=True),
         )  # fmt: skip
