@@ -1,4 +1,4 @@
-"""`viva-sitl trials run | fly | compare | show | scenarios`."""
+"""`viva-sitl trials run | fly | compare | show | scenarios | search`."""
 
 from __future__ import annotations
 
@@ -159,6 +159,9 @@ def build_parser() -> argparse.ArgumentParser:
     sc.add_argument("spec")
     sc.add_argument("--n", type=_pos_int)
     sc.add_argument("--seed", type=_nonneg_int)
+    from viva_sitl.evaluation.search import add_search_parser
+
+    add_search_parser(sub)
     return p
 
 
@@ -215,6 +218,10 @@ def trials_main(argv: list[str]) -> int:
             return _report(args)
         if args.cmd == "suite":
             return _suite(args)
+        if args.cmd == "search":
+            from viva_sitl.evaluation.search import search_main
+
+            return search_main(args)
         if args.cmd == "scenarios":
             from viva_sitl.evaluation.spec import draw_scenarios, load_spec
 
