@@ -63,11 +63,16 @@ def test_mismatches_name_each_difference_and_only_real_ones() -> None:
     assert run_mismatches(_doc(speed=2.0), _doc(speed=4.0)) == []
     ext = run_mismatches(_doc("p", "external", speed=2.0), _doc("p", "external", speed=4.0))
     assert ext == ["speed: 2.0 in A, 4.0 in B (both pilots were paced by it)"]
-    b = _doc(timing="lockstep", pilot_cpu_factor=2.0, versions={"viva-sitl": "1.1"})
+    b = _doc("p", "external", timing="lockstep", pilot_cpu_factor=2.0, versions={"viva-sitl": "1.1"})
     b["spec"]["footage"] = ["interchange"]
-    lines = run_mismatches(_doc(), b, "x", "y")
+    lines = run_mismatches(_doc("p", "external"), b, "x", "y")
     assert lines[0] == "timing: 'realtime' in x, 'lockstep' in y"
     assert lines[1] == "pilot_cpu_factor: None in x, 2.0 in y"
+    # an in-process pilot is lockstep whatever its (pre-v4) file says; a person is not compared on timing
+    assert run_mismatches(_doc(), _doc(timing="lockstep")) == []
+    assert run_mismatches(_doc("me", "human", speed=1.0), _doc("p", "external", timing="lockstep")) == [
+        "speed: 1.0 in A, 4.0 in B (both pilots were paced by it)"
+    ]
     assert lines[2].startswith("spec: hash aaaaaaaaaaaa in x") and lines[2].endswith("(differs in footage)")
     assert lines[3] == "viva-sitl version: '1.0' in x, '1.1' in y" and len(lines) == 4
     # results written before the run record: timing realtime, factor null, the file's version
@@ -139,7 +144,8 @@ def test_resume_with_trial_keeps_the_run_and_compare_refuses_other_conditions(ru
     other = runs / "other"
     shutil.copytree(out, other)
     od = json.loads((other / "results.json").read_text())
-    od["run"]["timing"] = "lockstep"
+    od["run"]["timing"] = "charged"
+    od["run"]["pilot_kind"] = "external"  # as if the same pilot had run as a program under charged timing
     od["run"]["pilot_cpu_factor"] = 2.0
     (other / "results.json").write_text(json.dumps(od))
     r = _cli("trials", "compare", str(out), str(other))
@@ -148,7 +154,7 @@ def test_resume_with_trial_keeps_the_run_and_compare_refuses_other_conditions(ru
     assert lines == [
         "viva-sitl trials: compare refused: the runs were not made under the same conditions (--allow-mismatch "
         "compares them anyway):",
-        f"  differs: {out} vs {other}: timing: 'realtime' in {out}, 'lockstep' in {other}",
+        f"  differs: {out} vs {other}: timing: 'lockstep' in {out}, 'charged' in {other}",
         f"  differs: {out} vs {other}: pilot_cpu_factor: None in {out}, 2.0 in {other}",
     ], r.stderr
     page = runs / "cmp.html"
@@ -213,10 +219,11 @@ def test_leaderboard_of_three_real_runs(three: Path) -> None:
     # a mismatch among three is refused as between two
     od = docs["oracle"]
     od["run"]["timing"] = "charged"
+    od["run"]["pilot_kind"] = "external"  # as a program under charged timing
     (three / "oracle-charged").mkdir()
     (three / "oracle-charged" / "results.json").write_text(json.dumps(od))
     r = _cli("trials", "compare", "descend", "same", "oracle-charged", cwd=three)
-    assert r.returncode == 2 and "differs: descend vs oracle-charged: timing: 'realtime'" in r.stderr, (
+    assert r.returncode == 2 and "differs: descend vs oracle-charged: timing: 'lockstep'" in r.stderr, (
         r.stderr
     )
     assert len(r.stderr.strip().splitlines()) == 2

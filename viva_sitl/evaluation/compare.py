@@ -7,8 +7,10 @@ Two runs are comparable when they ran under the same conditions: the same timing
 (issue 19), the same speed factor where both pilots were paced by it (external programs and people; an in-process
 pilot is not paced), the same spec apart from n, seed, default pilot, speed and frames (the scenarios and the
 scoring: what `spec_hash` covers, less what is compared on its own or does not change the scenarios), and the same
-viva-sitl version. Results written before the run record (results.json "run") read as timing "realtime" (the only
-mode there was), factor null, and the version and spec that results.json names.
+viva-sitl version. An in-process pilot counts as lockstep whatever its file says (it is stepped synchronously; files
+before schema v4 wrote "realtime"); a person (`trials fly`) flies on the wall clock, and against a program that is
+the comparison asked for: timing is not compared when one side is human. Results written before the run record
+(results.json "run") read as timing "realtime", factor null, and the version and spec that results.json names.
 """
 
 from __future__ import annotations
@@ -24,7 +26,7 @@ from viva_sitl.evaluation.stats import BOOTSTRAP_SEED, RESAMPLES, _r, holm, pair
 
 # spec keys left out of the spec identity: recorded on their own (n, seed, pilot), where it came from (source),
 # compared on its own where it matters (speed), or not a change of the scenarios (frames)
-_SPEC_NOT_COMPARED = ("source", "n", "seed", "pilot", "speed", "frames")
+_SPEC_NOT_COMPARED = ("source", "n", "seed", "pilot", "speed", "frames", "timing", "pilot_cpu_factor")
 
 
 def _run(doc: dict[str, Any]) -> dict[str, Any]:
@@ -49,11 +51,14 @@ def conditions(doc: dict[str, Any]) -> dict[str, Any]:
     kind = run.get("pilot_kind")
     versions = run.get("versions") if isinstance(run.get("versions"), dict) else {}
     assert isinstance(versions, dict)
+    paced = kind != "in-process" if kind is not None else not _inprocess(str(doc.get("pilot", "")))
+    # an in-process pilot is stepped in lockstep whatever its file says (files before v4 wrote "realtime")
     return {
-        "timing": run.get("timing", "realtime"),
-        "pilot_cpu_factor": run.get("pilot_cpu_factor"),
+        "timing": run.get("timing", "realtime") if paced else "lockstep",
+        "pilot_cpu_factor": run.get("pilot_cpu_factor") if paced else None,
+        "human": kind == "human",
         "speed": run.get("speed", spec.get("speed")),
-        "paced": kind != "in-process" if kind is not None else not _inprocess(str(doc.get("pilot", ""))),
+        "paced": paced,
         "spec": spec_identity(doc)[0],
         "spec_hash": run.get("spec_hash"),
         "viva-sitl": versions.get("viva-sitl", doc.get("viva_sitl_version")),
@@ -71,6 +76,8 @@ def run_mismatches(a: dict[str, Any], b: dict[str, Any], name_a: str = "A", name
     ca, cb = conditions(a), conditions(b)
     out: list[str] = []
     for key in ("timing", "pilot_cpu_factor"):
+        if ca["human"] or cb["human"]:
+            break  # a person flies on the wall clock: against a program, that is the comparison asked for
         if ca[key] != cb[key]:
             out.append(f"{key}: {ca[key]!r} in {name_a}, {cb[key]!r} in {name_b}")
     if ca["paced"] and cb["paced"] and ca["speed"] != cb["speed"]:
