@@ -526,7 +526,7 @@ def test_cli_interrupt_keeps_finished_trials_and_resume_completes(tmp_path: Path
         "n": 2,
         "pilot": "descend",
         "pilot_kind": "in-process",
-        "timing": "realtime",
+        "timing": "lockstep",
         "speed": 4.0,
     }
     assert (
@@ -538,7 +538,7 @@ def test_cli_interrupt_keeps_finished_trials_and_resume_completes(tmp_path: Path
     assert (
         "; seed 4;" in page
         and f"spec hash <code>{run['spec_hash'][:16]}</code>; seed 4; n 2; timing "
-        "realtime; speed 4.0; versions: viva-sitl"
+        "lockstep; speed 4.0; versions: viva-sitl"
         in page
     )
     show = subprocess.run([sys.executable, "-m", "viva_sitl", "trials", "show", str(out), "--trial", "1"],

@@ -452,8 +452,9 @@ def _provenance_html(doc: dict[str, Any]) -> str:
     )
     return (f"<p id='provenance'>What ran: {html.escape(str(run.get('pilot_kind')))} pilot "
             f"<code>{html.escape(str(run.get('pilot')))}</code>; spec hash <code>{str(run.get('spec_hash'))[:16]}"
-            f"</code>; seed {run.get('seed')}; n {run.get('n')}; timing {html.escape(str(run.get('timing')))}; "
-            f"speed {run.get('speed')}; versions: {vers}.</p>")  # fmt: skip
+            f"</code>; seed {run.get('seed')}; n {run.get('n')}; timing {html.escape(str(run.get('timing')))}"
+            + (f" (pilot CPU factor {run.get('pilot_cpu_factor')})" if run.get("pilot_cpu_factor") is not None else "")
+            + f"; speed {run.get('speed')}; versions: {vers}.</p>")  # fmt: skip
 
 
 # the per-trial table: the scenario's key, the outcome and every score a benchmark user compares (headers are the
