@@ -63,6 +63,9 @@ from viva_sitl.world import world_from_source
 
 log = logging.getLogger("viva_sitl.app")
 PILOT_WAIT_MAX_S = 15.0  # wall seconds a trial's clock waits for the pilot's first MAVLink message
+PILOT_SEARCH_PERIOD_S = (
+    0.5  # wall seconds between two looks for the pilot's process (lockstep, realtime watch)
+)
 
 
 def _world_layers_of(cfg: SimConfig) -> list[LayerProvider]:
@@ -144,6 +147,7 @@ class SitlApp:
         )
         self.pilot_pid: int | None = None  # --pilot-pid; else found from the first MAVLink message's sender
         self._pilot_tree: PilotTree | None = None
+        self._next_pilot_search_s = 0.0  # finding the owner of a port scans /proc (~40 ms): not every quantum
         if self.trial is not None:
             self.trial.timing = self._timing_record
 
@@ -255,6 +259,10 @@ class SitlApp:
         """The pilot's process group: --pilot-pid's, else the owner's of the local UDP port its MAVLink came from."""
         if self._pilot_tree is not None:
             return self._pilot_tree
+        now = time.monotonic()
+        if now < self._next_pilot_search_s:
+            return None
+        self._next_pilot_search_s = now + PILOT_SEARCH_PERIOD_S
         pid = self.pilot_pid
         if pid is None:
             for _, (host, port), _age in self.endpoint.peers_heard():

@@ -10,7 +10,7 @@ import sys
 from pathlib import Path
 
 from viva_sitl import __version__
-from viva_sitl.cliargs import OneLineErrors, hfov, home, port, pose, positive_float
+from viva_sitl.cliargs import OneLineErrors, add_timing_flags, hfov, home, port, pose, positive_float
 
 
 def _footage_scale_flags(p: argparse.ArgumentParser) -> None:
@@ -53,16 +53,7 @@ def build_parser() -> argparse.ArgumentParser:
         type=positive_float,
         help="sim seconds per wall second (default 1); MAVLink rates and timers are per sim second, as PX4 lockstep",
     )
-    run.add_argument(
-        "--timing", choices=("realtime", "lockstep", "charged"),
-        help="how sim time relates to the pilot's computing (default realtime): lockstep stops the clock while the "
-        "pilot (the local process that sends MAVLink, and its process group) computes; charged also bills its CPU "
-        "time x --pilot-cpu-factor in sim time (README: Timing)",
-    )  # fmt: skip
-    run.add_argument(
-        "--pilot-cpu-factor", type=float, metavar="F",
-        help="charged timing: sim seconds billed per CPU second of the pilot (2 = a computer 2x slower; default 1)",
-    )  # fmt: skip
+    add_timing_flags(run, "[sim] timing")
     run.add_argument(
         "--pilot-pid", type=int, metavar="PID",
         help="lockstep/charged: watch this process's group as the pilot (default: the owner of the local UDP port "

@@ -103,3 +103,29 @@ def positive_int(text: str) -> int:
     if v < 1:
         raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}")
     return v
+
+
+def nonneg_float(text: str) -> float:
+    """A finite number >= 0 (e.g. --pilot-cpu-factor: 0 = lockstep)."""
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number >= 0, got {text!r}") from None
+    if not (math.isfinite(v) and v >= 0.0):
+        raise argparse.ArgumentTypeError(f"expected a number >= 0, got {text!r}")
+    return v
+
+
+def add_timing_flags(parser: argparse.ArgumentParser, default_from: str) -> None:
+    """--timing and --pilot-cpu-factor (viva_sitl.timing), for `run` and `trials run`."""
+    parser.add_argument(
+        "--timing", choices=("realtime", "lockstep", "charged"),
+        help=f"how sim time relates to an external pilot's computing (default: {default_from}, else realtime): "
+        "lockstep stops the clock while the pilot's processes compute (scores independent of the machine and "
+        "its load); charged also bills their CPU time x --pilot-cpu-factor in sim time (README: Timing)",
+    )  # fmt: skip
+    parser.add_argument(
+        "--pilot-cpu-factor", type=nonneg_float, metavar="F",
+        help="charged timing: sim seconds billed per CPU second of the pilot (2 = a computer 2x slower than this "
+        "one; 0 = lockstep; default 1)",
+    )  # fmt: skip

@@ -11,10 +11,10 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from viva_sitl.cliargs import add_timing_flags, positive_float
 from viva_sitl.cliargs import nonneg_int as _nonneg_int
 from viva_sitl.cliargs import port as _port
 from viva_sitl.cliargs import pos_int as _pos_int
-from viva_sitl.cliargs import positive_float
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -62,17 +62,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="external pilots: the `viva-sitl run --speed` factor (default: the spec's trials.speed); a slow "
         "pilot (e.g. CPU vision) needs a lower one; the scenarios do not change",
     )  # fmt: skip
-    r.add_argument(
-        "--timing", choices=("realtime", "lockstep", "charged"),
-        help="external pilots: the trials' clock (default: the spec's trials.timing, else realtime). lockstep: sim "
-        "time stands still while the pilot computes (scores independent of the machine and its load); charged: "
-        "lockstep + the pilot's CPU time x --pilot-cpu-factor billed in sim time (README: Timing)",
-    )  # fmt: skip
-    r.add_argument(
-        "--pilot-cpu-factor", type=float, metavar="F",
-        help="charged timing: sim seconds per CPU second of the pilot (2 = a companion computer 2x slower than "
-        "this CPU; default: the spec's trials.pilot_cpu_factor, else 1)",
-    )  # fmt: skip
+    add_timing_flags(r, "the spec's trials.timing")
     r.add_argument("--no-progress", action="store_true", help="no progress bar")
     from viva_sitl.evaluation.human import MAVSDK_API_PORT, QGC_GCS_PORT, QGC_VIDEO_PORT
 
@@ -284,8 +274,6 @@ def _run(args: argparse.Namespace) -> int:
     if args.timing is not None:
         spec = dataclasses.replace(spec, timing=args.timing)
     if args.pilot_cpu_factor is not None:
-        if not (math.isfinite(args.pilot_cpu_factor) and args.pilot_cpu_factor >= 0):
-            raise ValueError(f"--pilot-cpu-factor must be a number >= 0, got {args.pilot_cpu_factor:g}")
         spec = dataclasses.replace(spec, pilot_cpu_factor=args.pilot_cpu_factor)
     pilot = args.pilot or spec.pilot
     check_external_pilot(pilot)
