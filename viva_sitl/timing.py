@@ -142,11 +142,10 @@ class PilotGate:
                 break
             if now - t0 >= NEVER_IDLE_GIVE_UP_S:
                 self.stats.never_idle += 1
-                prev = cur
                 break
             prev = cur
         end = time.monotonic()
-        last = prev if prev is not None and prev.wall_s >= end - 0.5 else self.tree.sample(end)
+        last = cur  # the newest look: the pilot's CPU up to now
         self._last = last
         self.stats.observe(last)
         waited = end - t0
