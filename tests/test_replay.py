@@ -339,8 +339,15 @@ def test_replay_page_slider_shows_the_recorded_moment(replay: ReplayProcess, run
         _wait(
             lambda: float(attr(driver, "hud-time", "data-value") or -1) < rec.start_s + 0.01, 10, "the start"
         )
-        fp_start = footprint(driver)
-        assert fp_start != fp_moving
+        # the footprint is drawn after the HUD: wait for the start pose's own (reading it at once raced in CI)
+        start = rec.samples[0]
+        want_start = footprint_px(sim.footage.geometry, sim.camera, start.pos_ned_m, start.att_rpy_rad)
+        assert want_start is not None
+        fp_start = _wait(
+            lambda: (fp := footprint(driver)) and max(math.dist(a, b) for a, b in zip(fp, want_start, strict=True)) < 0.2
+            and fp, 10, "the start's footprint",
+        )  # fmt: skip
+        assert max(math.dist(a, b) for a, b in zip(fp_start, fp_moving, strict=True)) > 1.0
         driver.find_element("id", "btn-play").click()
         _wait(lambda: attr(driver, "btn-play", "data-playing") == "true", 5, "playing")
         t_before = float(attr(driver, "hud-time", "data-value") or 0)
