@@ -3,6 +3,7 @@ pymavlink programs as pilots, real busy processes loading the machine (started a
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import subprocess
 import sys
@@ -233,3 +234,93 @@ def test_lockstep_frame_socket_pilot_is_load_independent(tmp_path: Path) -> None
         runs.append(rows)
     assert rows_equal(runs[0], runs[1]), (_strip(runs[0]), _strip(runs[1]))
     assert abs(runs[0][0]["touchdown_north_m"] - (runs[0][0]["start_north_m"] - 5.0)) < 1.0
+
+
+# BUSY_PILOT with its computing done by a child process it spawned: the parent sends the child each job through a
+# pipe and blocks (sleeping, not computing) until the child answers. Watching the parent alone would let the clock
+# run while the child computes; lockstep watches the pilot's whole process group.
+CHILD_PILOT = BUSY_PILOT.replace(
+    "import json, os, random, sys, time\n",
+    "import json, os, random, subprocess, sys, time\n"
+    "child = subprocess.Popen([sys.executable, '-c', 'import sys, time\\nfor line in sys.stdin:\\n"
+    "    end = time.thread_time() + float(line) / 1000.0\\n    while time.thread_time() < end: pass\\n"
+    '    print("ok", flush=True)\'], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)\n',
+).replace(
+    "        end = time.thread_time() + rng.uniform(lo, hi) / 1000.0  # a fixed amount of work, however loaded\n"
+    "        while time.thread_time() < end:\n            pass\n",
+    "        child.stdin.write(f'{rng.uniform(lo, hi)}\\n'); child.stdin.flush()\n"
+    "        assert child.stdout.readline().strip() == 'ok'\n",
+)
+
+# Exits with an error one sim second after "land now" (its last words on stderr)
+EXITING_PILOT = BUSY_PILOT.replace(
+    '        state = "offboard"\n',
+    '        state = "offboard"\n        died_at = time.monotonic()\n',
+).replace(
+    "    if time.monotonic() - last_hb > 1.0:\n",
+    "    if state != 'wait' and time.monotonic() - died_at > 0.5:\n"
+    "        print('pilot: lost the target, giving up', file=sys.stderr, flush=True)\n        sys.exit(3)\n"
+    "    if time.monotonic() - last_hb > 1.0:\n",
+)
+
+
+@pytest.mark.slow
+def test_lockstep_waits_for_a_child_the_pilot_spawned_to_compute(tmp_path: Path) -> None:
+    assert CHILD_PILOT != BUSY_PILOT and "child.stdin.write" in CHILD_PILOT
+    script = tmp_path / "child_pilot.py"
+    script.write_text(CHILD_PILOT)
+    spec = _spec("lockstep", n=1)
+    runs = []
+    for k, (busy, ms) in enumerate([(0, "5,15"), (2, "40,60")]):
+        with _busy_loops(busy):
+            camp = run_campaign(spec, f"{{python}} {script} {{pymavlink_url}} {ms}", tmp_path / f"o{k}",
+                                progress=False)  # fmt: skip
+        rows = camp.ordered_rows()
+        assert [r["end"] for r in rows] == ["landed"], [(r["end"], r["end_detail"]) for r in rows]
+        assert rows[0]["timing_ok"] is True
+        runs.append([{**r, "pilot": "child"} for r in rows])
+    # 4x the child's computing and a loaded machine: the clock stood still for the child, so the flight is the same
+    assert rows_equal(runs[0], runs[1]), (_strip(runs[0]), _strip(runs[1]))
+    timing = json.loads((tmp_path / "o1" / "trials" / "0000" / "end.json").read_text())["timing"]
+    assert timing["waited"] > 20 and timing["pilot_cpu_s"] > 1.0, timing  # the child's CPU is the pilot's
+
+
+@pytest.mark.slow
+def test_lockstep_pilot_that_ignores_the_frame_socket_or_exits_midway(tmp_path: Path) -> None:
+    # frames are rendered and published, nobody reads them: the clock does not wait for a reader
+    busy = tmp_path / "busy_pilot.py"
+    busy.write_text(BUSY_PILOT)
+    camp = run_campaign(_spec("lockstep", n=1, frames=True), f"{{python}} {busy} {{pymavlink_url}} 5,15",
+                        tmp_path / "ignores", progress=False)  # fmt: skip
+    (row,) = camp.ordered_rows()
+    assert row["end"] == "landed" and row["timing_ok"] is True, row
+    # a pilot that exits with an error mid-flight: pilot_error at once, with its last words
+    dying = tmp_path / "exiting_pilot.py"
+    dying.write_text(EXITING_PILOT)
+    camp = run_campaign(_spec("lockstep", n=1), f"{{python}} {dying} {{pymavlink_url}} 5,15", tmp_path / "exits",
+                        progress=False)  # fmt: skip
+    (row,) = camp.ordered_rows()
+    assert row["end"] == "pilot_error" and "lost the target" in row["end_detail"], row
+    assert row["flight_time_s"] < 20.0, row  # not the 60 s timeout
+
+
+@pytest.mark.slow
+def test_charged_fixed_latency_per_frame_delays_what_the_pilot_answers(tmp_path: Path) -> None:
+    script = tmp_path / "frame_pilot.py"
+    script.write_text(FRAME_PILOT)
+    ends, rows = {}, {}
+    for ms in (0.0, 250.0):
+        spec = dataclasses.replace(_spec("charged", n=1, factor=0.0, frames=True), pilot_latency_ms=ms)
+        out = tmp_path / f"l{ms:g}"
+        camp = run_campaign(
+            spec, f"{{python}} {script} {{pymavlink_url}} {{frame_socket}}", out, progress=False
+        )
+        (rows[ms],) = camp.ordered_rows()
+        assert rows[ms]["end"] == "landed" and rows[ms]["pilot_latency_ms"] == ms, rows[ms]
+        ends[ms] = json.loads((out / "trials" / "0000" / "end.json").read_text())
+    # the switch to offboard, computed from the first frame after "land now", takes effect 250 ms after that frame
+    delay = {ms: e["reaction_t_s"] - e["land_now_t_s"] for ms, e in ends.items()}
+    assert delay[0.0] <= 0.12 and 0.2 <= delay[250.0] - delay[0.0] <= 0.35, delay
+    assert ends[250.0]["timing"]["pilot_latency_ms"] == 250.0
+    run = json.loads((tmp_path / "l250" / "results.json").read_text())["run"]
+    assert run["timing"] == "charged" and run["pilot_latency_ms"] == 250.0

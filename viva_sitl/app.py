@@ -142,9 +142,11 @@ class SitlApp:
         self.flightlog: FlightLog | None = None  # the run's PX4 ULog (flightlog.py), opened by run()
         # --- timing (viva_sitl.timing): realtime, lockstep or charged ------------------------------------
         self.timing = Timing(config.timing)
+        charged = self.timing is Timing.CHARGED
         self.timing_stats = TimingStats(
-            self.timing, config.speed, config.pilot_cpu_factor if self.timing is Timing.CHARGED else None
-        )
+            self.timing, config.speed, config.pilot_cpu_factor if charged else None,
+            config.pilot_latency_ms if charged else None,
+        )  # fmt: skip
         self.pilot_pid: int | None = None  # --pilot-pid; else found from the first MAVLink message's sender
         self._pilot_tree: PilotTree | None = None
         self._next_pilot_search_s = 0.0  # finding the owner of a port scans /proc (~40 ms): not every quantum
@@ -308,9 +310,13 @@ class SitlApp:
         q_steps = max(1, round(QUANTUM_S / dt))
         charged = self.timing is Timing.CHARGED
         factor = self.config.pilot_cpu_factor
+        latency_s = self.config.pilot_latency_ms / 1000.0
         video = self.video if self.scheduler is not None else None
         frame_period = 1.0 / self.config.video.fps
         next_frame_t = self.sim.state.time_s
+        seen_t = (
+            self.sim.state.time_s
+        )  # the sim time of what the pilot last saw: the last frame, else the state
         tick = 0
         busy_run = 0  # consecutive quanta after which the pilot was still busy
         gate: PilotGate | None = None
@@ -330,6 +336,7 @@ class SitlApp:
                     frame = self._render_tick(tick)  # a frame at an exact sim time, not a wall tick
                     if frame is not None:  # None: an injected camera failure drops it
                         video.submit(frame)
+                        seen_t = self.sim.state.time_s
                     tick += 1
             clock.mark_done(q_steps)
             self._after_batch()
@@ -361,8 +368,13 @@ class SitlApp:
                 await run_paced(self.pacer, self._step_once, self._after_batch)  # realtime from here on
                 return
             if charged:
+                now = self.sim.state.time_s
                 charge = cpu_s * factor
-                self.endpoint.stamp_held(self.sim.state.time_s + charge)
+                # a fixed latency per frame counts from the frame the pilot answered (without video: from the
+                # state it was sent); the CPU charge from now; what it sent takes effect at the later of the two
+                self.endpoint.stamp_held(
+                    max(now + charge, (seen_t if video is not None else now) + latency_s)
+                )
                 clock.charge(charge)
                 self.timing_stats.charged_sim_s += charge
 
@@ -551,6 +563,8 @@ def config_from_args(args: argparse.Namespace) -> SimConfig:
         sim_updates["timing"] = args.timing
     if getattr(args, "pilot_cpu_factor", None) is not None:
         sim_updates["pilot_cpu_factor"] = args.pilot_cpu_factor
+    if getattr(args, "pilot_latency_ms", None) is not None:
+        sim_updates["pilot_latency_ms"] = args.pilot_latency_ms
     if args.seed is not None:
         sim_updates["seed"] = args.seed
     # placement, as PX4 SITL: --home, else [sim] home, else PX4_HOME_LAT/LON/ALT, else the footage's own place

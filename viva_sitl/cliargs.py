@@ -117,7 +117,7 @@ def nonneg_float(text: str) -> float:
 
 
 def add_timing_flags(parser: argparse.ArgumentParser, default_from: str) -> None:
-    """--timing and --pilot-cpu-factor (viva_sitl.timing), for `run` and `trials run`."""
+    """--timing, --pilot-cpu-factor and --pilot-latency-ms (viva_sitl.timing), for `run` and `trials run`."""
     parser.add_argument(
         "--timing", choices=("realtime", "lockstep", "charged"),
         help=f"how sim time relates to an external pilot's computing (default: {default_from}, else realtime): "
@@ -128,4 +128,9 @@ def add_timing_flags(parser: argparse.ArgumentParser, default_from: str) -> None
         "--pilot-cpu-factor", type=nonneg_float, metavar="F",
         help="charged timing: sim seconds billed per CPU second of the pilot (2 = a computer 2x slower than this "
         "one; 0 = lockstep; default 1)",
+    )  # fmt: skip
+    parser.add_argument(
+        "--pilot-latency-ms", type=nonneg_float, metavar="MS",
+        help="charged timing: a fixed latency per frame: what the pilot sends after frame k takes effect no earlier "
+        "than the frame's sim time + MS (with --pilot-cpu-factor, the later of the two; default 0)",
     )  # fmt: skip

@@ -138,6 +138,9 @@ class SimConfig:
     # charged bills the pilot's CPU seconds x pilot_cpu_factor in sim time (2: a computer 2x slower than this one)
     timing: str = "realtime"
     pilot_cpu_factor: float = 1.0
+    # charged: a fixed perception-to-action latency: what the pilot sends after frame k takes effect no earlier
+    # than the frame's sim time + pilot_latency_ms (with pilot_cpu_factor, the later of the two)
+    pilot_latency_ms: float = 0.0
     initial_pos_ned_m: tuple[float, float, float] = (0.0, 0.0, 0.0)  # start on the ground at the origin
     initial_yaw_deg: float = 0.0
     # where the NED origin (footage centre) is on Earth: places ANY footage there (None: the footage's own
@@ -161,6 +164,8 @@ class SimConfig:
             raise ConfigError(f"sim.timing must be realtime, lockstep or charged, got {self.timing!r}")
         if not (self.pilot_cpu_factor >= 0.0 and math.isfinite(self.pilot_cpu_factor)):
             raise ConfigError(f"sim.pilot_cpu_factor must be a number >= 0, got {self.pilot_cpu_factor!r}")
+        if not (self.pilot_latency_ms >= 0.0 and math.isfinite(self.pilot_latency_ms)):
+            raise ConfigError(f"sim.pilot_latency_ms must be a number >= 0, got {self.pilot_latency_ms!r}")
         for key in ("footage_alt_m", "footage_hfov_deg", "footage_gsd_m_per_px"):
             v = getattr(self, key)
             if v is not None and not (v > 0.0 and math.isfinite(v)):

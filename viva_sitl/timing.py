@@ -63,6 +63,7 @@ class TimingStats:
     mode: Timing
     speed: float
     pilot_cpu_factor: float | None
+    pilot_latency_ms: float | None = None  # charged: the fixed latency per frame
     pilot_pid: int | None = None
     quanta: int = 0  # lockstep quanta run
     waited: int = 0  # quanta after which the pilot was still computing
@@ -100,6 +101,7 @@ class TimingStats:
     def to_dict(self) -> dict[str, Any]:
         return {
             "mode": self.mode.value, "speed": self.speed, "pilot_cpu_factor": self.pilot_cpu_factor,
+            "pilot_latency_ms": self.pilot_latency_ms,
             "pilot_pid": self.pilot_pid, "quanta": self.quanta, "waited": self.waited,
             "busy_wall_s": round(self.busy_wall_s, 3), "max_busy_wall_s": round(self.max_busy_wall_s, 3),
             "charged_sim_s": round(self.charged_sim_s, 4), "never_idle": self.never_idle,

@@ -275,6 +275,8 @@ def _run(args: argparse.Namespace) -> int:
         spec = dataclasses.replace(spec, timing=args.timing)
     if args.pilot_cpu_factor is not None:
         spec = dataclasses.replace(spec, pilot_cpu_factor=args.pilot_cpu_factor)
+    if args.pilot_latency_ms is not None:
+        spec = dataclasses.replace(spec, pilot_latency_ms=args.pilot_latency_ms)
     pilot = args.pilot or spec.pilot
     check_external_pilot(pilot)
     safe = "".join(ch if ch.isalnum() or ch in "-_" else "_" for ch in pilot.split("/")[-1])[:40]

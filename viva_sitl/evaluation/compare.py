@@ -26,7 +26,8 @@ from viva_sitl.evaluation.stats import BOOTSTRAP_SEED, RESAMPLES, _r, holm, pair
 
 # spec keys left out of the spec identity: recorded on their own (n, seed, pilot), where it came from (source),
 # compared on its own where it matters (speed), or not a change of the scenarios (frames)
-_SPEC_NOT_COMPARED = ("source", "n", "seed", "pilot", "speed", "frames", "timing", "pilot_cpu_factor")
+_SPEC_NOT_COMPARED = ("source", "n", "seed", "pilot", "speed", "frames", "timing", "pilot_cpu_factor",
+                      "pilot_latency_ms")  # fmt: skip
 
 
 def _run(doc: dict[str, Any]) -> dict[str, Any]:
@@ -56,6 +57,7 @@ def conditions(doc: dict[str, Any]) -> dict[str, Any]:
     return {
         "timing": run.get("timing", "realtime") if paced else "lockstep",
         "pilot_cpu_factor": run.get("pilot_cpu_factor") if paced else None,
+        "pilot_latency_ms": run.get("pilot_latency_ms") if paced else None,
         "human": kind == "human",
         "speed": run.get("speed", spec.get("speed")),
         "paced": paced,
@@ -75,7 +77,7 @@ def run_mismatches(a: dict[str, Any], b: dict[str, Any], name_a: str = "A", name
     """One line per condition under which the two runs differ ([] = comparable)."""
     ca, cb = conditions(a), conditions(b)
     out: list[str] = []
-    for key in ("timing", "pilot_cpu_factor"):
+    for key in ("timing", "pilot_cpu_factor", "pilot_latency_ms"):
         if ca["human"] or cb["human"]:
             break  # a person flies on the wall clock: against a program, that is the comparison asked for
         if ca[key] != cb[key]:

@@ -196,7 +196,8 @@ def run_external_trial(
         "--frame-socket", frame_url, "--run-dir", str(trial_dir),
     ]  # fmt: skip
     if spec.timing != "realtime":
-        sitl_cmd += ["--timing", spec.timing, "--pilot-cpu-factor", f"{spec.pilot_cpu_factor:g}"]
+        sitl_cmd += ["--timing", spec.timing, "--pilot-cpu-factor", f"{spec.pilot_cpu_factor:g}",
+                     "--pilot-latency-ms", f"{spec.pilot_latency_ms:g}"]  # fmt: skip
     sitl_cmd += list(sitl_args)
     if video:
         sitl_cmd += ["--record", str(trial_dir / "vac.mp4")]
@@ -330,6 +331,7 @@ def add_timing_columns(row: dict[str, Any], timing: str, record: dict[str, Any] 
     rec = record or {}
     row["timing"] = timing
     row["pilot_cpu_factor"] = rec.get("pilot_cpu_factor")
+    row["pilot_latency_ms"] = rec.get("pilot_latency_ms")
     row["pilot_cpu_s"] = rec.get("pilot_cpu_s")
     row["pilot_run_delay_s"] = rec.get("pilot_run_delay_s")
     if timing == "realtime":

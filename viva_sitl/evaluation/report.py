@@ -454,6 +454,7 @@ def _provenance_html(doc: dict[str, Any]) -> str:
             f"<code>{html.escape(str(run.get('pilot')))}</code>; spec hash <code>{str(run.get('spec_hash'))[:16]}"
             f"</code>; seed {run.get('seed')}; n {run.get('n')}; timing {html.escape(str(run.get('timing')))}"
             + (f" (pilot CPU factor {run.get('pilot_cpu_factor')})" if run.get("pilot_cpu_factor") is not None else "")
+            + (f" (latency per frame {run.get('pilot_latency_ms')} ms)" if run.get("pilot_latency_ms") else "")
             + f"; speed {run.get('speed')}; versions: {vers}.</p>")  # fmt: skip
 
 

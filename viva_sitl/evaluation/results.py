@@ -142,6 +142,7 @@ def run_record(
     return {
         "spec_name": spec.name, "spec_hash": spec_hash(spec), "seed": spec.seed, "n": spec.n, "pilot": pilot, "pilot_kind": kind,
         "timing": timing, "pilot_cpu_factor": spec.pilot_cpu_factor if timing == "charged" else None,
+        "pilot_latency_ms": spec.pilot_latency_ms if timing == "charged" else None,
         "speed": spec.speed, "versions": versions(pilot), "python_executable": sys.executable,
     }  # fmt: skip
 

@@ -40,6 +40,7 @@ null = unavailable, never zero):
     timing                                              the trial's clock: lockstep (in-process pilots, and
                                                         external ones with timing = "lockstep"), charged, realtime
     pilot_cpu_factor                                    charged: sim s billed per CPU s of the pilot (else null)
+    pilot_latency_ms                                    charged: the fixed latency per frame (else null)
     pilot_cpu_s, pilot_run_delay_s                      external pilots: CPU seconds its processes used, and
                                                         seconds they were runnable with no CPU (machine load)
     timing_ok                                           false: the result depended on the machine (realtime: the
@@ -50,7 +51,7 @@ null = unavailable, never zero):
 
 v2 (from v1): + dist_object_m, min_dist_object_m, objects_present. v3 (from v2): + criterion_unavailable; person /
 vehicle / object scores and *_present are null where the footage did not annotate the class (v2 said "none
-present" and passed the criterion). v4 (from v3): + timing, pilot_cpu_factor, pilot_cpu_s, pilot_run_delay_s,
+present" and passed the criterion). v4 (from v3): + timing, pilot_cpu_factor, pilot_latency_ms, pilot_cpu_s, pilot_run_delay_s,
 timing_ok. report.read_results reads v1-v3 files too (the new columns null).
 """
 
@@ -75,7 +76,7 @@ COLUMNS = (
     "touchdown_horizontal_speed_m_s", "touchdown_speed_m_s", "dist_person_m", "dist_vehicle_m", "min_dist_person_m",
     "min_dist_vehicle_m", "dist_object_m", "min_dist_object_m", "risk_level", "time_to_land_s", "flight_time_s",
     "path_length_m", "energy_wh", "time_outside_footage_s", "failsafes", "failsafe_texts", "gt_objects", "gt_risk", "persons_present",
-    "vehicles_present", "objects_present", "success", "criterion_failures", "criterion_unavailable", "timing", "pilot_cpu_factor", "pilot_cpu_s",
+    "vehicles_present", "objects_present", "success", "criterion_failures", "criterion_unavailable", "timing", "pilot_cpu_factor", "pilot_latency_ms", "pilot_cpu_s",
     "pilot_run_delay_s", "timing_ok", "wall_s",
 )  # fmt: skip
 _I = {c: k for k, c in enumerate(TRAJECTORY_COLUMNS)}

@@ -12,7 +12,8 @@ choice):
                end_outside_s (a trial ends after this long with the ground point outside the footage),
                crash_speed_m_s (a touchdown faster than this is a crash), log_hz,
                timing ("realtime" | "lockstep" | "charged", external pilots: viva_sitl.timing; in-process pilots
-               are stepped in lockstep always) and pilot_cpu_factor (charged: sim s billed per pilot CPU s)
+               are stepped in lockstep always), pilot_cpu_factor (charged: sim s billed per pilot CPU s) and
+               pilot_latency_ms (charged: what the pilot sends after frame k takes effect at the frame's time + it)
     [scenario] footage (list), start ("air" | "ground" | both), north_m, east_m (ranges; default: the footage
                minus margin_m), margin_m, altitude_m, yaw_deg, footage_time_s, footage_time_slots (0: footage_time_s
                uniform; K >= 1: one of K evenly spaced times lo + (hi - lo) i / K, so that the copies of a vector
@@ -109,9 +110,11 @@ class TrialSpec:
     log_hz: float = 25.0
     frames: bool = False  # external pilots: render the VAC and serve the frame socket / RTP video
     # external pilots: how sim time relates to the pilot's computing (viva_sitl.timing): realtime | lockstep |
-    # charged (lockstep + the pilot's CPU seconds x pilot_cpu_factor billed in sim time)
+    # charged (lockstep + the pilot's CPU seconds x pilot_cpu_factor billed in sim time, and/or what it sends
+    # after frame k taking effect at the frame's time + pilot_latency_ms)
     timing: str = "realtime"
     pilot_cpu_factor: float = 1.0
+    pilot_latency_ms: float = 0.0
     footage: tuple[str, ...] = ("synthetic",)
     start: tuple[str, ...] = ("air",)
     north_m: Range | None = None
@@ -234,7 +237,7 @@ class Scenario:
 
 _TABLES = {
     "trials": ("name", "n", "seed", "timeout_s", "pilot", "speed", "end_outside_s", "crash_speed_m_s", "log_hz",
-               "frames", "timing", "pilot_cpu_factor"),
+               "frames", "timing", "pilot_cpu_factor", "pilot_latency_ms"),
     "scenario": ("footage", "start", "north_m", "east_m", "margin_m", "altitude_m", "yaw_deg", "footage_time_s",
                  "footage_time_slots", "land_at_s", "wind_speed_m_s", "wind_dir_deg", "gust_std_m_s", "params", "failures"),
     "scoring": ("final_descent_below_m", "criterion"),
@@ -330,6 +333,8 @@ def spec_from_dict(data: dict[str, Any], where: str = "spec") -> TrialSpec:
         kw["timing"] = t["timing"]
     if "pilot_cpu_factor" in t:
         kw["pilot_cpu_factor"] = _positive(t["pilot_cpu_factor"], f"{w}.pilot_cpu_factor", allow_zero=True)
+    if "pilot_latency_ms" in t:
+        kw["pilot_latency_ms"] = _positive(t["pilot_latency_ms"], f"{w}.pilot_latency_ms", allow_zero=True)
     w = f"{where}.scenario"
     if "footage" in s:
         kw["footage"] = _choice(s["footage"], f"{w}.footage")

@@ -354,10 +354,11 @@ def card(out: Path) -> dict[str, Any]:
             "time_to_land_s": _mean_ci(agg, "time_to_land_s"),
             "infra_errors": agg["infra_errors"]["n"],
             "timing": run.get("timing", "realtime"), "pilot_cpu_factor": run.get("pilot_cpu_factor"),
-            "speed": run.get("speed"), "pilot_kind": run.get("pilot_kind"), "versions": run.get("versions"),
+            "pilot_latency_ms": run.get("pilot_latency_ms"), "speed": run.get("speed"),
+            "pilot_kind": run.get("pilot_kind"), "versions": run.get("versions"),
         }  # fmt: skip
     first: dict[str, Any] = next(iter(result["splits"].values()), {})
-    result["timing"] = {k: first.get(k) for k in ("timing", "pilot_cpu_factor", "speed")}
+    result["timing"] = {k: first.get(k) for k in ("timing", "pilot_cpu_factor", "pilot_latency_ms", "speed")}
     result["versions"] = first.get("versions")
     (out / "card.json").write_text(json.dumps(result, indent=1))
     (out / "card.md").write_text(card_markdown(result))
@@ -378,7 +379,9 @@ def card_markdown(c: dict[str, Any]) -> str:
         f"# {c['suite']}: `{c['pilot']}`",
         "",
         f"Suite **{c['suite']}** ({c['title']}), sha256 `{c['suite_sha256']}`; pilot `{c['pilot']}`; timing "
-        f"{t['timing']}, pilot CPU factor {'none' if t['pilot_cpu_factor'] is None else t['pilot_cpu_factor']}, speed {t['speed']}; versions: {vers}.",
+        f"{t['timing']}, pilot CPU factor {'none' if t['pilot_cpu_factor'] is None else t['pilot_cpu_factor']}"
+        + (f", latency per frame {t['pilot_latency_ms']} ms" if t.get("pilot_latency_ms") else "")
+        + f", speed {t['speed']}; versions: {vers}.",
     ]
     if c["partial"]:
         lines += ["", "**PARTIAL RUN (--limit): not a result on the suite; do not cite.**"]
