@@ -22,111 +22,10 @@ pytestmark = [
     pytest.mark.skipif(bool(supported()), reason=supported() or "Linux /proc with schedstat"),
 ]
 
-# Told to land, it flies offboard velocity setpoints toward a spot 6 m north-east of where it was, descending, one
-# setpoint per LOCAL_POSITION_NED it receives; each one costs it argv[2] ms of CPU time (seeded per message),
-# then below 2 m it commands LAND. Its wall-clock heartbeat timer does not steer.
-BUSY_PILOT = r"""
-import json, os, random, sys, time
-os.environ["MAVLINK20"] = "1"
-from pymavlink import mavutil
-scenario = json.load(open(os.environ["VIVA_SITL_SCENARIO"]))
-lo, hi = (float(x) for x in sys.argv[2].split(","))
-rng = random.Random(scenario["index"])
-m = mavutil.mavlink_connection(sys.argv[1], source_system=255)
-m.wait_heartbeat(timeout=30)
-m.mav.command_long_send(m.target_system, 1, mavutil.mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, 0, 32, 50000, 0, 0, 0, 0, 0)
-OFFBOARD = 6 << 16
-mask = 0b0000_1111_1100_0111  # velocities only
-state, target, last_hb = "wait", None, 0.0
-while True:
-    if time.monotonic() - last_hb > 1.0:
-        m.mav.heartbeat_send(mavutil.mavlink.MAV_TYPE_GCS, mavutil.mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0)
-        last_hb = time.monotonic()
-    msg = m.recv_match(type=["STATUSTEXT", "HEARTBEAT", "LOCAL_POSITION_NED"], blocking=True, timeout=0.5)
-    if msg is None:
-        continue
-    t = msg.get_type()
-    if t == "STATUSTEXT" and "land now" in msg.text and state == "wait":
-        state = "offboard"
-    elif t == "LOCAL_POSITION_NED" and state in ("offboard", "flying"):
-        if target is None:
-            target = (msg.x + 6.0, msg.y + 6.0)
-        end = time.thread_time() + rng.uniform(lo, hi) / 1000.0  # a fixed amount of work, however loaded
-        while time.thread_time() < end:
-            pass
-        vn = max(-3.0, min(3.0, 0.8 * (target[0] - msg.x)))
-        ve = max(-3.0, min(3.0, 0.8 * (target[1] - msg.y)))
-        m.mav.set_position_target_local_ned_send(0, m.target_system, 1, mavutil.mavlink.MAV_FRAME_LOCAL_NED, mask,
-                                                 0, 0, 0, vn, ve, 1.5, 0, 0, 0, 0, 0)
-        if state == "offboard":
-            m.mav.command_long_send(m.target_system, 1, mavutil.mavlink.MAV_CMD_DO_SET_MODE, 0,
-                                    mavutil.mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, 6, 0, 0, 0, 0, 0)
-            state = "flying"
-        elif -msg.z < 2.0:
-            m.mav.command_long_send(m.target_system, 1, mavutil.mavlink.MAV_CMD_NAV_LAND, 0, 0, 0, 0, 0, 0, 0, 0)
-            state = "landing"
-    elif t == "HEARTBEAT" and msg.get_srcSystem() == m.target_system and state == "landing":
-        if not msg.base_mode & mavutil.mavlink.MAV_MODE_FLAG_SAFETY_ARMED:
-            print("disarmed: done", flush=True)
-            break
-"""
-
-# A companion-computer pilot: reads the frame-and-pose socket (viva_sitl's FrameClient), computes 20-40 ms of CPU
-# per frame (seeded), and flies velocity setpoints from each frame's pose toward a spot 5 m south of where it was
-# told to land; below 2 m it commands LAND. MAVLink only between frames (non-blocking).
-FRAME_PILOT = r"""
-import json, os, random, sys, time
-os.environ["MAVLINK20"] = "1"
-from pymavlink import mavutil
-from viva_sitl.video.frame_socket import FrameClient
-scenario = json.load(open(os.environ["VIVA_SITL_SCENARIO"]))
-rng = random.Random(scenario["index"])
-m = mavutil.mavlink_connection(sys.argv[1], source_system=255)
-m.wait_heartbeat(timeout=30)
-m.mav.heartbeat_send(mavutil.mavlink.MAV_TYPE_GCS, mavutil.mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0)
-mask = 0b0000_1111_1100_0111
-state, target = "wait", None
-with FrameClient(sys.argv[2], latest_only=False, rcvhwm=4) as client:
-    while True:
-        while (msg := m.recv_match(blocking=False)) is not None:
-            t = msg.get_type()
-            if t == "STATUSTEXT" and "land now" in msg.text and state == "wait":
-                state = "offboard"
-            elif t == "HEARTBEAT" and msg.get_srcSystem() == m.target_system and state == "landing":
-                if not msg.base_mode & mavutil.mavlink.MAV_MODE_FLAG_SAFETY_ARMED:
-                    print("disarmed: done", flush=True)
-                    sys.exit(0)
-        item = client.receive(timeout_s=0.5)
-        if item is None or state in ("wait", "landing"):
-            continue
-        n, e, d = item[1]["pos_ned_m"]
-        if target is None:
-            target = (n - 5.0, e)
-        end = time.thread_time() + rng.uniform(0.02, 0.04)
-        while time.thread_time() < end:
-            pass
-        vn, ve = max(-3.0, min(3.0, target[0] - n)), max(-3.0, min(3.0, target[1] - e))
-        m.mav.set_position_target_local_ned_send(0, m.target_system, 1, mavutil.mavlink.MAV_FRAME_LOCAL_NED, mask,
-                                                 0, 0, 0, vn, ve, 1.5, 0, 0, 0, 0, 0)
-        if state == "offboard":
-            m.mav.command_long_send(m.target_system, 1, mavutil.mavlink.MAV_CMD_DO_SET_MODE, 0,
-                                    mavutil.mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, 6, 0, 0, 0, 0, 0)
-            state = "flying"
-        elif -d < 2.0:
-            m.mav.command_long_send(m.target_system, 1, mavutil.mavlink.MAV_CMD_NAV_LAND, 0, 0, 0, 0, 0, 0, 0, 0)
-            state = "landing"
-"""
-
-SPINNER_PILOT = r"""
-import os, sys
-os.environ["MAVLINK20"] = "1"
-from pymavlink import mavutil
-m = mavutil.mavlink_connection(sys.argv[1], source_system=255)
-m.wait_heartbeat(timeout=30)
-m.mav.heartbeat_send(mavutil.mavlink.MAV_TYPE_GCS, mavutil.mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0)
-while True:  # busy polling: never waits for anything
-    m.recv_match(blocking=False)
-"""
+PILOTS = Path(__file__).parent / "pilots"
+BUSY_PILOT = (PILOTS / "pymavlink_busy.py").read_text()  # pymavlink, LO,HI ms of CPU per LOCAL_POSITION_NED
+FRAME_PILOT = (PILOTS / "frame_busy.py").read_text()  # frame socket, 20-40 ms of CPU per frame
+SPINNER_PILOT = (PILOTS / "spinner.py").read_text()  # busy polling
 
 
 def _spec(timing: str, n: int = 2, factor: float = 1.0, speed: float = 2.0, frames: bool = False) -> object:
@@ -240,11 +139,12 @@ def test_lockstep_frame_socket_pilot_is_load_independent(tmp_path: Path) -> None
 # pipe and blocks (sleeping, not computing) until the child answers. Watching the parent alone would let the clock
 # run while the child computes; lockstep watches the pilot's whole process group.
 CHILD_PILOT = BUSY_PILOT.replace(
-    "import json, os, random, sys, time\n",
-    "import json, os, random, subprocess, sys, time\n"
+    "import time\n",
+    "import time\nimport subprocess\n"
     "child = subprocess.Popen([sys.executable, '-c', 'import sys, time\\nfor line in sys.stdin:\\n"
     "    end = time.thread_time() + float(line) / 1000.0\\n    while time.thread_time() < end: pass\\n"
     '    print("ok", flush=True)\'], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)\n',
+    1,
 ).replace(
     "        end = time.thread_time() + rng.uniform(lo, hi) / 1000.0  # a fixed amount of work, however loaded\n"
     "        while time.thread_time() < end:\n            pass\n",
@@ -252,7 +152,7 @@ CHILD_PILOT = BUSY_PILOT.replace(
     "        assert child.stdout.readline().strip() == 'ok'\n",
 )
 
-# Exits with an error one sim second after "land now" (its last words on stderr)
+# Exits with an error half a wall second after "land now" (its last words on stderr)
 EXITING_PILOT = BUSY_PILOT.replace(
     '        state = "offboard"\n',
     '        state = "offboard"\n        died_at = time.monotonic()\n',
@@ -266,7 +166,10 @@ EXITING_PILOT = BUSY_PILOT.replace(
 
 @pytest.mark.slow
 def test_lockstep_waits_for_a_child_the_pilot_spawned_to_compute(tmp_path: Path) -> None:
-    assert CHILD_PILOT != BUSY_PILOT and "child.stdin.write" in CHILD_PILOT
+    assert (
+        "child.stdin.write" in CHILD_PILOT
+        and "while time.thread_time() < end:\n            pass" not in CHILD_PILOT
+    )
     script = tmp_path / "child_pilot.py"
     script.write_text(CHILD_PILOT)
     spec = _spec("lockstep", n=1)
@@ -295,6 +198,7 @@ def test_lockstep_pilot_that_ignores_the_frame_socket_or_exits_midway(tmp_path: 
     (row,) = camp.ordered_rows()
     assert row["end"] == "landed" and row["timing_ok"] is True, row
     # a pilot that exits with an error mid-flight: pilot_error at once, with its last words
+    assert "sys.exit(3)" in EXITING_PILOT and "died_at = time.monotonic()" in EXITING_PILOT
     dying = tmp_path / "exiting_pilot.py"
     dying.write_text(EXITING_PILOT)
     camp = run_campaign(_spec("lockstep", n=1), f"{{python}} {dying} {{pymavlink_url}} 5,15", tmp_path / "exits",
