@@ -55,7 +55,7 @@ from numpy.typing import NDArray
 from viva_sitl.footage.errors import FootageError
 from viva_sitl.footage.geometry import FootageGeometry
 from viva_sitl.footage.metadata import FootageMetadata
-from viva_sitl.footage.source import FootageSource
+from viva_sitl.footage.source import FootageCapabilities, FootageSource, RegionRead
 from viva_sitl.imaging import half_size, max_pyramid_level
 
 U8 = NDArray[np.uint8]
@@ -518,6 +518,9 @@ class TileCache:
             self._lru_bytes = 0
 
 
+_TILE_CAPABILITIES = FootageCapabilities(region=RegionRead.TILES)
+
+
 class TileSource(FootageSource):
     """A footage served from a tile cache (the same interface as `VideoSource`, plus `region`)."""
 
@@ -538,6 +541,11 @@ class TileSource(FootageSource):
         self._fps = metadata.fps or self.cache.fps
         self._frame: tuple[int, U8] | None = None
         self._closed = False
+
+    @property
+    def capabilities(self) -> FootageCapabilities:
+        """Regions of the stored pyramid levels (only the tiles under them decoded)."""
+        return _TILE_CAPABILITIES
 
     @property
     def fps(self) -> float:
