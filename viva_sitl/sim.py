@@ -43,9 +43,7 @@ from viva_sitl.camera.pyramid import RegionPyramid
 from viva_sitl.config import SimConfig
 from viva_sitl.dynamics import EavCommand, EavParams, EavState, floats3, step
 from viva_sitl.footage import FootageSource, open_footage
-from viva_sitl.footage.source import VideoSource
-from viva_sitl.footage.synthetic import SyntheticField
-from viva_sitl.footage.tiles import TileSource
+from viva_sitl.footage.source import RegionRead
 from viva_sitl.frame import FrameMeta, RenderedFrame
 from viva_sitl.geo import GeoOrigin
 
@@ -119,11 +117,9 @@ class Simulator:
         self._source_level_used = 0
         self.region_renders = 0  # statistics: renders served by the region path / by the whole frame
         self.full_renders = 0
-        if (
-            region_render
-            and isinstance(self.footage, VideoSource | TileSource)
-            and not self.camera.has_distortion
-        ):
+        # what the footage can do (its capabilities) picks the render path, never its type
+        caps = self.footage.capabilities
+        if region_render and caps.region is not RegionRead.NONE and not self.camera.has_distortion:
             w, h = self.footage.frame_size_px
             # BGRA (video crops are converted to it, tiles as they are pasted): the renderer's 4-channel warp reads
             # the region buffers directly
@@ -135,7 +131,7 @@ class Simulator:
         self.super_resolution: MagnifiedRenderLike | None = None
         self._prefetcher: ThreadPoolExecutor | None = None
         self._prefetch_job: Future[None] | None = None
-        if prefetch and isinstance(self.footage, VideoSource) and self.footage.frame_count > 1:
+        if prefetch and caps.prefetch and self.footage.frame_count > 1:
             self._prefetcher = ThreadPoolExecutor(max_workers=1, thread_name_prefix="viva-sitl-prefetch")
         self.reset(self.config.seed)
 
@@ -281,9 +277,10 @@ class Simulator:
             return None
         if self._pyramid_index == index and self._pyramid is not None:
             return None  # the whole frame is already converted (footage_frame was called): reuse it
-        if isinstance(self.footage, TileSource):
+        reads = self.footage.capabilities.region
+        if reads is RegionRead.TILES:
             return self._tile_region(index, s, region)
-        if not isinstance(self.footage, VideoSource):
+        if reads is not RegionRead.CROP:
             return None
         plan = self._plan_region(s, region)
         if plan is None:
@@ -317,7 +314,6 @@ class Simulator:
     ) -> tuple[RegionPyramid, int] | None:
         """The region pyramid filled from the tile cache: level (and level + 1 to blend) pixels under the plan,
         as BGRA (the alpha is 255; the renderer's 4-channel warp reads it without a conversion of its own)."""
-        assert isinstance(self.footage, TileSource)
         plan = self._plan_region(s, region, exact=False)
         if plan is None:
             return None
@@ -343,7 +339,7 @@ class Simulator:
     def _source_level(self, level: int, region: RegionPyramid) -> int:
         """The footage level to decode for pyramid level `level`: 0 (the source), or with `footage_levels` the
         deepest ingest-cache copy <= level whose size is that pyramid level's."""
-        if not self._footage_levels or level == 0 or not isinstance(self.footage, VideoSource):
+        if not self._footage_levels or level == 0 or not self.footage.capabilities.reduced_copies:
             return 0
         for k in range(min(level, self.footage.level_count - 1), 0, -1):
             if self.footage.level_size_px(k) == region.sizes_px[k]:
@@ -352,7 +348,7 @@ class Simulator:
 
     def _prefetch_next(self, index: int) -> None:
         """Start decoding the footage frame after `index` on the prefetch thread (one job at a time)."""
-        if self._prefetcher is None or not isinstance(self.footage, VideoSource):
+        if self._prefetcher is None or not self.footage.capabilities.prefetch:
             return
         if self._prefetch_job is not None and not self._prefetch_job.done():
             return
@@ -365,8 +361,8 @@ class Simulator:
     def _render_ground_view(
         self, s: EavState, rgb: bool = False, out: NDArray[np.uint8] | None = None
     ) -> tuple[int, RenderResult]:
-        """An edgeless procedural ground (the synthetic field): render from a window drawn around the footprint."""
-        assert isinstance(self.footage, SyntheticField)
+        """An edgeless procedural ground (capabilities.ground_view: the synthetic field): render from a window drawn
+        around the footprint."""
         index = self.footage.frame_index_at(s.time_s + self.footage_offset_s)
         cam = self.camera
         k = camera_intrinsics(cam)
@@ -393,7 +389,7 @@ class Simulator:
     ) -> tuple[int, RenderResult]:
         """(footage frame index, render result); `rgb`, `out`: the image in RGB order, written into `out` (see
         Renderer.render)."""
-        if self.footage.geometry.unbounded and isinstance(self.footage, SyntheticField):
+        if self.footage.capabilities.ground_view:
             return self._render_ground_view(s, rgb, out)
         # --- super-resolution hook (issue 9): low flight renders from an upscaled crop of the full frame ---
         sr = self.super_resolution

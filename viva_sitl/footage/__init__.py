@@ -6,6 +6,8 @@
     src.geometry.px_to_ned(u, v)               # footage pixel -> ground (north, east) m
     src.annotations(idx)                       # [Annotation]: boxes mapped to metres (ground truth for synthetic)
 
+What a source can do beyond whole frames (region reads, decoding ahead, an edgeless ground, ...) it declares in
+`source.capabilities` (a `FootageCapabilities`); callers ask that, not the source's type.
 Sources: `VideoSource` (PyAV decode: sequential fast path, keyframe seek for jumps), `StillSource` (one image) and
 `SyntheticField` (the built-in SYNTHETIC CALIBRATION FIELD: metric grid + markers with analytic trajectories, no
 edge: drawn around the camera wherever it flies; more moving `GroundObject`s via `add_object`; walking people, a
@@ -23,7 +25,7 @@ from viva_sitl.footage.errors import FootageError
 from viva_sitl.footage.geometry import FootageGeometry
 from viva_sitl.footage.loader import open_footage, resolve_metadata
 from viva_sitl.footage.metadata import AnnotationFormat, CatalogSpec, FootageKind, FootageMetadata
-from viva_sitl.footage.source import FootageSource, StillSource, VideoSource
+from viva_sitl.footage.source import FootageCapabilities, FootageSource, RegionRead, StillSource, VideoSource
 from viva_sitl.footage.srt import SrtSample, SrtTrack, parse_srt, parse_srt_text
 from viva_sitl.footage.synthetic import GroundObject, MarkerSpec, SyntheticField, SyntheticFieldParams
 
@@ -31,6 +33,7 @@ __all__ = [
     "Annotation",
     "AnnotationFormat",
     "CatalogSpec",
+    "FootageCapabilities",
     "FootageError",
     "FootageGeometry",
     "FootageKind",
@@ -38,6 +41,7 @@ __all__ = [
     "FootageSource",
     "GroundObject",
     "MarkerSpec",
+    "RegionRead",
     "SrtSample",
     "SrtTrack",
     "StillSource",

@@ -130,8 +130,9 @@ def _is_locked(lock_path: Path) -> bool:
 
 
 def verify(folder: Path) -> tiles.TileCache:
-    """Open a cache and check the checksums and sizes of its first and last frames' tiles; FootageError if not."""
-    cache = tiles.TileCache(folder)
+    """Open a cache and check the checksums and sizes of its first and last frames' tiles; FootageError if not.
+    (Read with the default settings: a check reads each tile once, the caller's LRU and threads do not matter.)"""
+    cache = tiles.TileCache(folder, tiles.TileSettings())
     try:
         lay = cache.layout
         for frame in sorted({0, cache.frame_count - 1}):

@@ -42,6 +42,7 @@ from viva_sitl.footage.loader import (
 )
 from viva_sitl.footage.metadata import FootageKind, FootageMetadata
 from viva_sitl.footage.paths import default_cache_dir
+from viva_sitl.footage.source import RegionRead
 from viva_sitl.footage.srt import find_srt_sidecar
 from viva_sitl.footage.worldmeta import derived_tracks_path
 
@@ -273,7 +274,7 @@ def ingest_tiles(
         raise FootageError(f"bad cache name {entry!r}")
     dest = out_dir if out_dir is not None else (cache_dir or default_cache_dir()) / INGEST_SUBDIR / entry
     src = open_footage(spec, shared_dir=shared_dir, config_dir=config_dir, cache_dir=cache_dir)
-    if isinstance(src, tiles.TileSource):
+    if src.capabilities.region is RegionRead.TILES:
         src.close()
         raise FootageError(f"{spec} is already a tile cache")
     with src:

@@ -9,16 +9,18 @@ writing into them.
 from __future__ import annotations
 
 import abc
+import enum
 import logging
 import math
 import threading
+from dataclasses import dataclass
 from fractions import Fraction
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import cv2
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from viva_sitl.footage.annotations import Annotation, AnnotationStore
 from viva_sitl.footage.errors import FootageError
@@ -44,11 +46,50 @@ def _readonly(img: NDArray[np.uint8]) -> NDArray[np.uint8]:
     return img
 
 
+class RegionRead(enum.Enum):
+    """How a source can serve part of a frame (what the renderer's region path reads)."""
+
+    NONE = "none"  # whole frames only (`frame`)
+    CROP = "crop"  # `frame_region`: the decoded frame, only the asked crop converted to BGR (a 4:2:0 video)
+    TILES = "tiles"  # `region`: stored pyramid levels, only the tiles under the region decoded (a tile cache)
+
+
+@dataclass(frozen=True)
+class FootageCapabilities:
+    """What a footage source can do beyond `frame(index)`: declared by the source, asked by its users (the
+    Simulator's render paths, ingest) instead of switching on the source's type.
+
+    `region`: the partial reads it serves (RegionRead). `reduced_copies`: `frame(index, level=k)` /
+    `frame_region(..., level=k)` decode a separately stored 1/2^k copy (an ingest cache's levels; `level_count`,
+    `level_size_px` say which exist). `prefetch`: `prefetch()` decodes ahead, worth a read-ahead thread (a stateful
+    decoder). `ground_view`: an edgeless procedural ground, rendered through `ground_view()` from a window drawn
+    around the camera's footprint. `per_view`: the source keeps state that follows ONE camera (the ground window),
+    so each concurrent view needs its own source; without it one open source may serve several views (a vector env
+    shares it).
+    """
+
+    region: RegionRead = RegionRead.NONE
+    reduced_copies: bool = False
+    prefetch: bool = False
+    ground_view: bool = False
+    per_view: bool = False
+
+
 class FootageSource(abc.ABC):
-    """A footage (video, still or synthetic field) with its ground geometry."""
+    """A footage (video, still or synthetic field) with its ground geometry.
+
+    Optional abilities (`capabilities` says which a source has) have harmless defaults here, so that callers
+    need no type checks: `frame_region` returns None, `prefetch` does nothing, `level_count` is 1; `region` and
+    `ground_view` raise NotImplementedError on a source that does not declare them.
+    """
 
     geometry: FootageGeometry
     metadata: FootageMetadata
+
+    @property
+    def capabilities(self) -> FootageCapabilities:
+        """What this source can do beyond whole frames (default: nothing)."""
+        return FootageCapabilities()
 
     @property
     @abc.abstractmethod
@@ -82,6 +123,57 @@ class FootageSource(abc.ABC):
     def annotations(self, index: int) -> list[Annotation]:
         """Ground-truth/labelled objects in frame `index` (empty when the footage has none)."""
         return []
+
+    # --- optional abilities (see `capabilities`) ---------------------------------------------------------
+    @property
+    def frame_size_px(self) -> tuple[int, int]:
+        """(width, height) of the level-0 frames."""
+        return (self.geometry.width_px, self.geometry.height_px)
+
+    @property
+    def level_count(self) -> int:
+        """Resolution levels `frame(index, level)` / `level_size_px` know (1: the frame only)."""
+        return 1
+
+    def level_size_px(self, level: int) -> tuple[int, int] | None:
+        """(width, height) of level `level` (0: the frame); None where the source has no such level."""
+        return self.frame_size_px if level == 0 else None
+
+    def frame_region(
+        self, index: int, x0: int, y0: int, x1: int, y1: int, level: int = 0
+    ) -> NDArray[np.uint8] | None:
+        """`frame(index)[y0:y1, x0:x1]` converting only that region (RegionRead.CROP); None: not available, read
+        the whole frame."""
+        return None
+
+    def region(
+        self,
+        index: int,
+        level: int,
+        x0: int,
+        y0: int,
+        x1: int,
+        y1: int,
+        out: NDArray[np.uint8] | None = None,
+        quad: NDArray[np.float64] | None = None,
+        margin_px: float = 0.0,
+    ) -> NDArray[np.uint8]:
+        """Pixels [y0:y1, x0:x1] of pyramid level `level` of frame `index` (RegionRead.TILES)."""
+        raise NotImplementedError(f"{type(self).__name__} serves no pyramid regions (capabilities.region)")
+
+    def prefetch(self, index: int, level: int = 0, only_next: bool = False) -> None:  # noqa: B027 - optional
+        """Decode frame `index` ahead of its read (capabilities.prefetch); nothing to do by default."""
+
+    def ground_view(
+        self,
+        index: int,
+        camera_ned_m: ArrayLike,
+        rays_ned: NDArray[np.float64],
+        ground_px_m: float,
+    ) -> tuple[NDArray[np.uint8], FootageGeometry]:
+        """A window of an edgeless ground around the camera's footprint and its geometry
+        (capabilities.ground_view)."""
+        raise NotImplementedError(f"{type(self).__name__} has no edgeless ground (capabilities.ground_view)")
 
     def close(self) -> None:  # noqa: B027 - optional hook, nothing to release by default
         """Release decoders and files. Idempotent."""
@@ -410,6 +502,9 @@ def crop_to_bgr(
     return np.asarray(small.to_ndarray(format="bgr24"), dtype=np.uint8)
 
 
+_VIDEO_CAPABILITIES = FootageCapabilities(region=RegionRead.CROP, reduced_copies=True, prefetch=True)
+
+
 class VideoSource(FootageSource):
     """A video file decoded with PyAV (any FFmpeg-readable codec)."""
 
@@ -429,6 +524,11 @@ class VideoSource(FootageSource):
         self._annotations = AnnotationStore(
             metadata.annotations_path, metadata.annotations_format, self.geometry, metadata.class_names
         )
+
+    @property
+    def capabilities(self) -> FootageCapabilities:
+        """Crops of the decoded frame, the ingest cache's reduced copies, decoding ahead."""
+        return _VIDEO_CAPABILITIES
 
     @property
     def fps(self) -> float:

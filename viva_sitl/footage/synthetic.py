@@ -39,7 +39,7 @@ from numpy.typing import ArrayLike, NDArray
 from viva_sitl.footage.annotations import Annotation, make_annotation
 from viva_sitl.footage.geometry import FootageGeometry
 from viva_sitl.footage.metadata import FootageKind, FootageMetadata
-from viva_sitl.footage.source import FootageSource, _readonly
+from viva_sitl.footage.source import FootageCapabilities, FootageSource, _readonly
 from viva_sitl.footage.synthetic_actors import draw_actors, draw_scene_ground
 
 LABEL = "SYNTHETIC CALIBRATION FIELD"
@@ -272,6 +272,7 @@ class SyntheticField(FootageSource):
             p.width_px, p.height_px, p.gsd_m_per_px, p.recording_altitude_m, 0.0, None,
             unbounded=p.unbounded,
         )  # fmt: skip
+        self._capabilities = FootageCapabilities(ground_view=p.unbounded, per_view=True)
         self.objects: list[GroundObject] = list(p.markers)
         self._frame_count = int(round(p.loop_s * p.fps))
         self._background: NDArray[np.uint8] | None = None
@@ -286,6 +287,11 @@ class SyntheticField(FootageSource):
         self.windows_ahead = 0  # ... of which drawn ahead on the background thread
         self._pool: ThreadPoolExecutor | None = None
         self._ahead: tuple[int, FootageGeometry, Future[NDArray[np.uint8]]] | None = None
+
+    @property
+    def capabilities(self) -> FootageCapabilities:
+        """No edge (`unbounded`): rendered through `ground_view`; its window follows one view (`per_view`)."""
+        return self._capabilities
 
     @property
     def fps(self) -> float:

@@ -1,0 +1,208 @@
+"""Tile cache format: the layout of a cache folder, the tile grid, the index records and their checksums, and the
+tile codecs (see the package docstring for the whole format)."""
+
+from __future__ import annotations
+
+import json
+import threading
+import zlib
+from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from viva_sitl.footage.errors import FootageError
+from viva_sitl.imaging import half_size, max_pyramid_level
+
+U8 = NDArray[np.uint8]
+
+TILES_SUBDIR = "tiles"
+FORMAT_VERSION = 2
+DEFAULT_TILE_PX = 256
+DEFAULT_CODEC = "jpeg"
+CODECS = ("jpeg", "png", "raw", "yuv420z")
+AUTO_CODEC = "yuv420z"  # the automatic cache's codec (viva_sitl.footage.autocache)
+DEFAULT_JPEG_QUALITY = 95
+# qualities tried, best first, when the size bound would be exceeded at the asked one
+JPEG_FALLBACK_QUALITIES = (95, 92, 90, 85, 80, 75, 70, 60, 50)
+PACK_BYTES = 1 << 30  # start a new pack file beyond this size
+COMMIT_FRAMES = 4  # progress.json is rewritten (and packs flushed) every this many frames
+INDEX_DTYPE = np.dtype([("pack", "<u4"), ("length", "<u4"), ("offset", "<u8"), ("check", "<u8")])
+INDEX_DTYPE_V1 = np.dtype(
+    [("pack", "<u4"), ("length", "<u4"), ("offset", "<u8"), ("check", "<u4"), ("pad", "<u4")]
+)
+_MASK64 = (1 << 64) - 1
+_RAW_MAGIC = b"RAWT"
+_YUVZ_MAGIC = b"Y4Z1"
+YUVZ_LEVEL = 3  # zstd level of the yuv420z codec's level-0 tiles (decode speed does not depend on it)
+# full-resolution chroma: 4:2:0 costs 4-7 dB on sharp coarse levels (bench/results_tiles.md) for ~30 % less size
+_JPEG_444 = (cv2.IMWRITE_JPEG_SAMPLING_FACTOR, cv2.IMWRITE_JPEG_SAMPLING_FACTOR_444)
+
+# Environment overrides for every tile source of a process and its children (the trials' pool sets the decode
+# threads per worker: 1 when the workers fill the cores, where handing ~2 misses per frame to a pool costs more than
+
+
+@dataclass(frozen=True)
+class TileLayout:
+    """Level sizes and tile grid of one footage size."""
+
+    width_px: int
+    height_px: int
+    tile_px: int
+    levels: tuple[tuple[int, int], ...]  # (w, h) per level
+    grid: tuple[tuple[int, int], ...]  # (tiles across, tiles down) per level
+    first: tuple[int, ...]  # index of each level's first tile within a frame
+
+    @staticmethod
+    def of(width_px: int, height_px: int, tile_px: int) -> TileLayout:
+        if width_px <= 0 or height_px <= 0 or tile_px < 16:
+            raise FootageError(f"bad tile layout {width_px}x{height_px}, tile {tile_px} px")
+        sizes = [(width_px, height_px)]
+        for _ in range(max_pyramid_level(width_px, height_px)):
+            w, h = sizes[-1]
+            sizes.append(((w + 1) // 2, (h + 1) // 2))
+        grid = [(-(-w // tile_px), -(-h // tile_px)) for w, h in sizes]
+        first, n = [], 0
+        for nx, ny in grid:
+            first.append(n)
+            n += nx * ny
+        return TileLayout(width_px, height_px, tile_px, tuple(sizes), tuple(grid), tuple(first))
+
+    @property
+    def tiles_per_frame(self) -> int:
+        nx, ny = self.grid[-1]
+        return self.first[-1] + nx * ny
+
+    def tile_index(self, level: int, tx: int, ty: int) -> int:
+        return self.first[level] + ty * self.grid[level][0] + tx
+
+
+def tile_checksum(data: bytes | memoryview) -> int:
+    """The format-2 tile checksum: the bytes as little-endian uint64 words summed modulo 2^64 (the last < 8 bytes
+    as one more word), plus the length. ~12x cheaper than CRC-32 on a raw tile (see the module docstring)."""
+    n = len(data)
+    whole = n - n % 8
+    total = int(np.frombuffer(data, "<u8", count=whole // 8).sum(dtype=np.uint64)) if whole else 0
+    return (total + int.from_bytes(bytes(data[whole:]), "little") + n) & _MASK64
+
+
+# format -> its index record and the checksum the record holds (format 1: CRC-32 in 4 bytes; caches written by
+# earlier versions stay readable)
+FORMATS: dict[int, tuple[np.dtype[Any], Callable[[bytes], int]]] = {
+    1: (INDEX_DTYPE_V1, zlib.crc32),
+    2: (INDEX_DTYPE, tile_checksum),
+}
+
+
+def _encode_yuvz(tile: U8) -> bytes:
+    """A BGR tile as planar YUV 4:2:0 (I420, OpenCV's BT.601 conversion) compressed with zstd; an odd width or
+    height is padded by repeating the last column/row (the header keeps the true size)."""
+    import zstandard
+
+    h, w = tile.shape[:2]
+    even = tile
+    if w % 2 or h % 2:
+        even = np.asarray(cv2.copyMakeBorder(tile, 0, h % 2, 0, w % 2, cv2.BORDER_REPLICATE), np.uint8)
+    yuv = cv2.cvtColor(even, cv2.COLOR_BGR2YUV_I420)
+    body = zstandard.ZstdCompressor(level=YUVZ_LEVEL).compress(yuv.tobytes())
+    return _YUVZ_MAGIC + int(w).to_bytes(2, "little") + int(h).to_bytes(2, "little") + body
+
+
+_zstd_local = threading.local()
+
+
+def _decode_yuvz(data: bytes | memoryview) -> U8 | None:
+    import zstandard
+
+    if len(data) < 8 or bytes(data[:4]) != _YUVZ_MAGIC:
+        return None
+    w = int.from_bytes(data[4:6], "little")
+    h = int.from_bytes(data[6:8], "little")
+    ew, eh = w + w % 2, h + h % 2
+    dec = getattr(_zstd_local, "dec", None)
+    if dec is None:  # a decompression context is not thread-safe: one per decode thread
+        dec = _zstd_local.dec = zstandard.ZstdDecompressor()
+    try:
+        raw = dec.decompress(data[8:], max_output_size=ew * eh * 3 // 2)
+    except zstandard.ZstdError:
+        return None
+    if len(raw) != ew * eh * 3 // 2:
+        return None
+    bgr = cv2.cvtColor(np.frombuffer(raw, np.uint8).reshape(eh * 3 // 2, ew), cv2.COLOR_YUV2BGR_I420)
+    return np.asarray(bgr if (ew, eh) == (w, h) else bgr[:h, :w], dtype=np.uint8)
+
+
+def _encode(tile: U8, codec: str, quality: int, level: int = 0) -> bytes:
+    """One tile's bytes. "yuv420z" is two codecs by level: level 0 as zstd-compressed YUV 4:2:0 (the video's own
+    chroma resolution: ~47 dB, decoded ~4x faster than a JPEG), coarser levels as JPEG 4:4:4 (4:2:0 there costs
+    5-10 dB: a box-halved level has full-resolution chroma again; bench/results_tiles.md, session 10)."""
+    if codec == "raw":
+        h, w = tile.shape[:2]
+        return _RAW_MAGIC + int(w).to_bytes(2, "little") + int(h).to_bytes(2, "little") + tile.tobytes()
+    if codec == "yuv420z":
+        if level == 0:
+            return _encode_yuvz(tile)
+        codec = "jpeg"
+    if codec == "jpeg":
+        ok, buf = cv2.imencode(".jpg", tile, [cv2.IMWRITE_JPEG_QUALITY, quality, *_JPEG_444])
+    else:
+        ok, buf = cv2.imencode(".png", tile, [cv2.IMWRITE_PNG_COMPRESSION, 1])
+    if not ok:
+        raise FootageError(f"cannot encode a tile as {codec}")
+    return bytes(buf)
+
+
+def _decode(data: bytes | memoryview, codec: str) -> U8 | None:
+    if codec == "raw":
+        if len(data) < 8 or bytes(data[:4]) != _RAW_MAGIC:
+            return None
+        w = int.from_bytes(data[4:6], "little")
+        h = int.from_bytes(data[6:8], "little")
+        if len(data) != 8 + w * h * 3:
+            return None
+        return np.frombuffer(data, np.uint8, offset=8).reshape(h, w, 3)
+    if codec == "yuv420z" and bytes(data[:4]) == _YUVZ_MAGIC:
+        return _decode_yuvz(data)
+    img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
+    return None if img is None else np.asarray(img, dtype=np.uint8)
+
+
+def frame_pyramid(frame_bgr: U8) -> list[U8]:
+    """Every level of the frame, as LazyPyramid builds them (level 0 is the frame)."""
+    levels = [frame_bgr]
+    for _ in range(max_pyramid_level(frame_bgr.shape[1], frame_bgr.shape[0])):
+        levels.append(half_size(levels[-1]))
+    return levels
+
+
+def encode_frame(
+    frame_bgr: U8, layout: TileLayout, codec: str, quality: int, pool: ThreadPoolExecutor | None = None
+) -> list[bytes]:
+    """The encoded tiles of one frame, in index order (level by level, row by row)."""
+    jobs: list[tuple[U8, int]] = []
+    t = layout.tile_px
+    for level, img in enumerate(frame_pyramid(frame_bgr)):
+        nx, ny = layout.grid[level]
+        for ty in range(ny):
+            for tx in range(nx):
+                jobs.append((np.ascontiguousarray(img[ty * t : (ty + 1) * t, tx * t : (tx + 1) * t]), level))
+    if pool is None:
+        return [_encode(j, codec, quality, lv) for j, lv in jobs]
+    return list(pool.map(lambda j: _encode(j[0], codec, quality, j[1]), jobs))
+
+
+def read_progress(tiles_dir: Path) -> dict[str, Any]:
+    try:
+        p = json.loads((tiles_dir / "progress.json").read_text(encoding="utf-8"))
+        return p if isinstance(p, dict) else {}
+    except (OSError, ValueError):
+        return {}
+
+
+def is_tile_cache(folder: Path) -> bool:
+    return (Path(folder) / TILES_SUBDIR / "meta.json").is_file()

@@ -1,0 +1,381 @@
+"""Reading a tile cache: `TileCache` (checked tile reads, an LRU of decoded tiles, region assembly) and `TileSource`
+(a FootageSource served from it). Their settings (`TileSettings`) are arguments: nothing here reads the
+environment."""
+
+from __future__ import annotations
+
+import json
+import threading
+from collections import OrderedDict
+from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from viva_sitl.footage.errors import FootageError
+from viva_sitl.footage.geometry import FootageGeometry
+from viva_sitl.footage.metadata import FootageMetadata
+from viva_sitl.footage.source import FootageCapabilities, FootageSource, RegionRead
+from viva_sitl.footage.tiles.format import (
+    CODECS,
+    FORMATS,
+    TILES_SUBDIR,
+    U8,
+    TileLayout,
+    _decode,
+    read_progress,
+)
+from viva_sitl.footage.tiles.settings import TileSettings
+
+_TILE_CAPABILITIES = FootageCapabilities(region=RegionRead.TILES)
+
+
+class TileCache:
+    """Read access to one tile cache folder (`<folder>/tiles`), with an LRU of decoded tiles."""
+
+    def __init__(
+        self,
+        folder: Path,
+        settings: TileSettings | None = None,
+        *,
+        cache_bytes: int | None = None,
+        decode_threads: int | None = None,
+    ) -> None:
+        """`settings`: the LRU cap and decode threads (None: TileSettings() defaults; the environment is read only
+        by `open_footage`); `cache_bytes`, `decode_threads` override one of them."""
+        base = settings if settings is not None else TileSettings()
+        cap = base.cache_bytes if cache_bytes is None else int(cache_bytes)
+        threads = base.decode_threads if decode_threads is None else int(decode_threads)
+        self.folder = Path(folder)
+        self.dir = self.folder / TILES_SUBDIR
+        self._rebuild = f"rebuild it with `viva-sitl footage ingest --tiles` (or delete {self.folder})"
+        meta = self._read_meta()
+        index_dtype, self._checksum = FORMATS[int(meta["version"])]
+        try:
+            self.layout = TileLayout.of(int(meta["width_px"]), int(meta["height_px"]), int(meta["tile_px"]))
+            self.frame_count = int(meta["frames"])
+            self.fps = float(meta["fps"])
+            self.codec = str(meta["codec"])
+            self.quality = int(meta["quality"])
+            levels = [tuple(int(v) for v in s) for s in meta["levels"]]
+        except (KeyError, TypeError, ValueError) as exc:
+            raise self._error(f"bad tiles/meta.json ({exc})") from None
+        if self.codec not in CODECS or self.frame_count <= 0 or not self.fps > 0:
+            raise self._error("bad tiles/meta.json (codec, frames or fps)")
+        if tuple(levels) != self.layout.levels:
+            raise self._error(
+                f"tiles/meta.json lists {len(levels)} levels, the frame size needs {len(self.layout.levels)}"
+            )
+        progress = read_progress(self.dir)
+        if progress.get("frames_done") != self.frame_count:
+            raise self._error(
+                f"unfinished build ({progress.get('frames_done', 0)}/{self.frame_count} frames): rerun the ingest"
+            )
+        n = self.frame_count * self.layout.tiles_per_frame
+        index_path = self.dir / "index.bin"
+        if not index_path.is_file() or index_path.stat().st_size != n * index_dtype.itemsize:
+            raise self._error("tiles/index.bin is missing or has the wrong size")
+        self.index = np.fromfile(index_path, index_dtype)
+        if np.any(self.index["length"] == 0):
+            first = int(np.argmax(self.index["length"] == 0))
+            frame, rest = divmod(first, self.layout.tiles_per_frame)
+            level = int(np.searchsorted(self.layout.first, rest, side="right")) - 1
+            raise self._error(f"frame {frame} level {level} has missing tiles in tiles/index.bin")
+        self._packs: list[Any] = []
+        ends = self.index["offset"] + self.index["length"]
+        for k in range(int(self.index["pack"].max()) + 1):
+            path = self.dir / f"pack-{k:03d}.bin"
+            if not path.is_file():
+                raise self._error(f"{path.name} is missing")
+            need = int(ends[self.index["pack"] == k].max(initial=0))
+            if path.stat().st_size < need:
+                raise self._error(f"{path.name} is truncated ({path.stat().st_size} of {need} bytes)")
+            self._packs.append(open(path, "rb"))  # noqa: SIM115 - kept open for the cache's life
+        self.cache_bytes = cap
+        self._lru: OrderedDict[tuple[int, int], U8] = OrderedDict()
+        self._lru_bytes = 0
+        self._lock = threading.Lock()
+        self.tiles_decoded = 0  # statistics
+        self.tile_hits = 0
+        # cv2.imdecode releases the GIL: misses of one region are decoded in parallel
+        self._pool = (
+            ThreadPoolExecutor(threads, thread_name_prefix="viva-sitl-tile-decode")
+            if threads > 1 and self.codec != "raw"
+            else None
+        )
+
+    def _error(self, what: str) -> FootageError:
+        return FootageError(f"tile cache {self.folder}: {what}; {self._rebuild}")
+
+    def _read_meta(self) -> dict[str, Any]:
+        path = self.dir / "meta.json"
+        try:
+            meta = json.loads(path.read_text(encoding="utf-8"))
+        except FileNotFoundError:
+            raise self._error("tiles/meta.json is missing") from None
+        except (OSError, ValueError) as exc:
+            raise self._error(f"tiles/meta.json is unreadable ({exc})") from None
+        version = meta.get("version") if isinstance(meta, dict) else None
+        if type(version) is not int or version not in FORMATS:
+            raise self._error("tiles/meta.json has an unknown format")
+        return meta
+
+    @property
+    def disk_bytes(self) -> int:
+        return sum(p.stat().st_size for p in self.dir.glob("*") if p.is_file())
+
+    @property
+    def lru_bytes(self) -> int:
+        return self._lru_bytes
+
+    def _read(self, frame: int, level: int, tx: int, ty: int) -> U8 | bytes:
+        """The cached decoded tile, or its checked encoded bytes."""
+        t = self.layout.tile_index(level, tx, ty)
+        with self._lock:
+            hit = self._lru.get((frame, t))
+            if hit is not None:
+                self._lru.move_to_end((frame, t))
+                self.tile_hits += 1
+                return hit
+            if not self._packs:
+                raise FootageError(f"tile cache {self.folder} is closed")
+            rec = self.index[frame * self.layout.tiles_per_frame + t]
+            length = int(rec["length"])
+            f = self._packs[int(rec["pack"])]
+            f.seek(int(rec["offset"]))
+            data = f.read(length)
+        where = f"frame {frame} level {level} tile ({tx}, {ty})"
+        if len(data) != length:
+            raise self._error(f"{where}: pack truncated")
+        if self._checksum(data) != int(rec["check"]):
+            raise self._error(f"{where}: checksum mismatch")
+        return data
+
+    def _decoded(self, frame: int, level: int, tx: int, ty: int, data: bytes) -> U8:
+        """Decode checked bytes, check the size, keep the tile in the LRU."""
+        img = _decode(data, self.codec)
+        lw, lh = self.layout.levels[level]
+        ts = self.layout.tile_px
+        want = (min(ts, lh - ty * ts), min(ts, lw - tx * ts), 3)
+        if img is None or img.shape != want:
+            raise self._error(f"frame {frame} level {level} tile ({tx}, {ty}): does not decode to a "
+                              f"{want[1]}x{want[0]} image")  # fmt: skip
+        img.setflags(write=False)
+        key = (frame, self.layout.tile_index(level, tx, ty))
+        with self._lock:
+            self.tiles_decoded += 1
+            if key not in self._lru:
+                self._lru[key] = img
+                self._lru_bytes += img.nbytes
+            while self._lru_bytes > self.cache_bytes and len(self._lru) > 1:
+                _, old = self._lru.popitem(last=False)
+                self._lru_bytes -= old.nbytes
+        return img
+
+    def tile(self, frame: int, level: int, tx: int, ty: int) -> U8:
+        """The decoded tile (read-only), checked against its length, checksum and expected size."""
+        got = self._read(frame, level, tx, ty)
+        return got if isinstance(got, np.ndarray) else self._decoded(frame, level, tx, ty, got)
+
+    def tiles_under(
+        self,
+        level: int,
+        x0: int,
+        y0: int,
+        x1: int,
+        y1: int,
+        quad: NDArray[np.float64] | None = None,
+        margin_px: float = 0.0,
+    ) -> list[tuple[int, int]]:
+        """(tx, ty) of the tiles of level `level` meeting [x0, x1) x [y0, y1); with `quad` (a convex polygon in
+        level pixel coordinates, e.g. the VAC footprint) only those within `margin_px` of it (separating axes)."""
+        ts = self.layout.tile_px
+        txs = range(x0 // ts, (x1 - 1) // ts + 1)
+        grid = [(x, y) for y in range(y0 // ts, (y1 - 1) // ts + 1) for x in txs]  # row-major
+        if quad is None or len(quad) < 3:
+            return grid
+        # the footprint's edges as outward normals n and extents h: a tile is kept unless, along some n, its
+        # rectangle lies beyond h (separating axis)
+        q = np.asarray(quad, np.float64)
+        centre = q.mean(axis=0)
+        axes: list[tuple[float, float, float]] = []
+        for i in range(len(q)):
+            e = q[(i + 1) % len(q)] - q[i]
+            n = np.array([e[1], -e[0]])
+            if np.dot(n, centre - q[i]) > 0:
+                n = -n  # outward
+            axes.append((float(n[0]), float(n[1]), float(np.max(q @ n)) + 1e-9))
+        keep = []
+        for tx, ty in grid:
+            # tile pixel centres span [t * ts, (t + 1) * ts - 1]; grown by the margin (per tile in plain floats:
+            # a few tiles, where numpy's per-call cost dominated)
+            rx0, ry0 = tx * ts - margin_px, ty * ts - margin_px
+            rx1, ry1 = (tx + 1) * ts - 1 + margin_px, (ty + 1) * ts - 1 + margin_px
+            if all((rx0 if nx > 0 else rx1) * nx + (ry0 if ny > 0 else ry1) * ny <= h for nx, ny, h in axes):
+                keep.append((tx, ty))
+        return keep
+
+    def region(
+        self,
+        frame: int,
+        level: int,
+        x0: int,
+        y0: int,
+        x1: int,
+        y1: int,
+        out: U8 | None = None,
+        quad: NDArray[np.float64] | None = None,
+        margin_px: float = 0.0,
+    ) -> U8:
+        """Level `level` pixels [y0:y1, x0:x1] of frame `frame`, assembled from the tiles under them (with `quad`:
+        only the tiles within `margin_px` of that polygon; the rest of `out` is left as it was). Tiles missing
+        from the LRU are decoded on `decode_threads` threads. A 4-channel `out` receives BGRA (alpha 255): each
+        tile is converted as it is pasted, one pass instead of a copy and a conversion."""
+        lw, lh = self.layout.levels[level]
+        if not (0 <= x0 < x1 <= lw and 0 <= y0 < y1 <= lh):
+            raise ValueError(f"region ({x0}, {y0})-({x1}, {y1}) outside level {level} ({lw}x{lh})")
+        if out is None:
+            out = np.empty((y1 - y0, x1 - x0, 3), np.uint8)
+        if out.shape[:2] != (y1 - y0, x1 - x0) or out.ndim != 3 or out.shape[2] not in (3, 4):
+            raise ValueError(f"out must be a {x1 - x0}x{y1 - y0} BGR or BGRA array, got shape {out.shape}")
+        bgra = out.shape[2] == 4
+        ts = self.layout.tile_px
+        todo = self.tiles_under(level, x0, y0, x1, y1, quad, margin_px)
+        got = [self._read(frame, level, tx, ty) for tx, ty in todo]
+        misses = [i for i, g in enumerate(got) if not isinstance(g, np.ndarray)]
+        if len(misses) > 1 and self._pool is not None:
+            decoded = list(
+                self._pool.map(lambda i: self._decoded(frame, level, *todo[i], got[i]), misses)  # type: ignore[arg-type]
+            )
+        else:
+            decoded = [self._decoded(frame, level, *todo[i], got[i]) for i in misses]  # type: ignore[arg-type]
+        for i, img in zip(misses, decoded, strict=True):
+            got[i] = img
+        for (tx, ty), tile in zip(todo, got, strict=True):
+            assert isinstance(tile, np.ndarray)
+            ax0, ay0 = tx * ts, ty * ts
+            sx0, sy0 = max(x0, ax0), max(y0, ay0)
+            sx1, sy1 = min(x1, ax0 + tile.shape[1]), min(y1, ay0 + tile.shape[0])
+            part = tile[sy0 - ay0 : sy1 - ay0, sx0 - ax0 : sx1 - ax0]
+            if bgra:
+                cv2.cvtColor(part, cv2.COLOR_BGR2BGRA, dst=out[sy0 - y0 : sy1 - y0, sx0 - x0 : sx1 - x0])
+            else:
+                out[sy0 - y0 : sy1 - y0, sx0 - x0 : sx1 - x0] = part
+        return out
+
+    def close(self) -> None:
+        if self._pool is not None:
+            self._pool.shutdown(wait=True)
+            self._pool = None
+        with self._lock:
+            for f in self._packs:
+                f.close()
+            self._packs.clear()
+            self._lru.clear()
+            self._lru_bytes = 0
+
+
+class TileSource(FootageSource):
+    """A footage served from a tile cache (the same interface as `VideoSource`, plus `region`)."""
+
+    def __init__(
+        self,
+        metadata: FootageMetadata,
+        folder: Path,
+        geometry_factory: Callable[[int, int], FootageGeometry],
+        cache_bytes: int | None = None,
+        *,
+        settings: TileSettings | None = None,
+    ) -> None:
+        """`settings`: see TileCache (`cache_bytes` overrides its LRU cap)."""
+        self.metadata = metadata
+        self.cache = TileCache(folder, settings, cache_bytes=cache_bytes)
+        try:
+            self.geometry = geometry_factory(self.cache.layout.width_px, self.cache.layout.height_px)
+        except BaseException:
+            self.cache.close()
+            raise
+        self._fps = metadata.fps or self.cache.fps
+        self._frame: tuple[int, U8] | None = None
+        self._closed = False
+
+    @property
+    def capabilities(self) -> FootageCapabilities:
+        """Regions of the stored pyramid levels (only the tiles under them decoded)."""
+        return _TILE_CAPABILITIES
+
+    @property
+    def fps(self) -> float:
+        return self._fps
+
+    @property
+    def frame_count(self) -> int:
+        return self.cache.frame_count
+
+    @property
+    def frame_size_px(self) -> tuple[int, int]:
+        return (self.cache.layout.width_px, self.cache.layout.height_px)
+
+    @property
+    def level_count(self) -> int:
+        return len(self.cache.layout.levels)
+
+    def level_size_px(self, level: int) -> tuple[int, int] | None:
+        levels = self.cache.layout.levels
+        return levels[level] if 0 <= level < len(levels) else None
+
+    def _check_open(self) -> None:
+        if self._closed:
+            raise FootageError(f"footage {self.metadata.name!r} is closed")
+
+    def frame(self, index: int, level: int = 0) -> U8:
+        """Frame `index` at pyramid level `level` (0: full resolution), assembled from all its tiles."""
+        self._check_open()
+        index = int(index) % self.frame_count
+        if level == 0 and self._frame is not None and self._frame[0] == index:
+            return self._frame[1]
+        w, h = self.cache.layout.levels[level]
+        img = self.cache.region(index, level, 0, 0, w, h)
+        img.setflags(write=False)
+        if level == 0:
+            self._frame = (index, img)
+        return img
+
+    def region(
+        self,
+        index: int,
+        level: int,
+        x0: int,
+        y0: int,
+        x1: int,
+        y1: int,
+        out: U8 | None = None,
+        quad: NDArray[np.float64] | None = None,
+        margin_px: float = 0.0,
+    ) -> U8:
+        """Pixels [y0:y1, x0:x1] of pyramid level `level` of frame `index` (only the tiles under them decoded;
+        with `quad`, only those within `margin_px` of it: see `TileCache.region`)."""
+        self._check_open()
+        return self.cache.region(int(index) % self.frame_count, level, x0, y0, x1, y1, out, quad, margin_px)
+
+    def prefetch(self, index: int, level: int = 0, only_next: bool = False) -> None:
+        """Nothing to do ahead: tiles are decoded on demand (kept for the VideoSource interface)."""
+
+    def describe(self) -> dict[str, Any]:
+        out = super().describe()
+        c = self.cache
+        out["tile_cache"] = (
+            f"{c.codec}" + (f" q{c.quality}" if c.codec == "jpeg" else "")
+            + f", {c.layout.tile_px} px tiles, {len(c.layout.levels)} levels, {c.disk_bytes / 2**20:.1f} MiB"
+        )  # fmt: skip
+        return out
+
+    def close(self) -> None:
+        if not self._closed:
+            self._closed = True
+            self._frame = None
+            self.cache.close()
