@@ -5,7 +5,12 @@
     obs, info = env.reset(seed=0)            # obs = {"image": HxWxC uint8 (RGB), "state": float32[10]}
     obs, reward, terminated, truncated, info = env.step(env.action_space.sample())
 
-Actions (`action_mode`):
+Settings: a LandingEnvConfig (viva_sitl.gym.config: observation / action / termination / scenario groups, `env_config=`)
+and/or the flat keyword arguments named below (action_mode, observation, image_size, spec, config, ...), which set
+its fields. The step is split as Gymnasium's FuncEnv, public: reset = next_scenario + initial; step = check_action +
+transition + step_result, step_result = reward + terminal + observation (SharedFootageVectorEnv drives these).
+
+Actions (`action_mode`, one viva_sitl.gym.actions.ActionMode object each):
 - "attitude" (default): viva-safeland DroneEnv's normalised [roll, pitch, yaw-rate, thrust] in [-1, 1]: roll =
   max_tilt_deg x a0, pitch = max_tilt_deg x a1 (its sign convention: +a1 = its +theta = nose down in NED terms is
   -pitch), yaw rate = max_yaw_rate_deg_s x a2 (its +psi is counter-clockwise seen from above), thrust = m g (1 + a3);
