@@ -21,6 +21,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+from gymnasium import spaces
+from numpy.typing import NDArray
+
 from viva_sitl.config import SimConfig
 from viva_sitl.gym.scenario import TrialSpec
 from viva_sitl.gym.scoring import RewardConfig
@@ -94,6 +98,22 @@ class ObservationConfig:
     def channels(self) -> int:
         """Image channels: 1 or 3 per view, times frame_stack."""
         return (1 if self.grayscale else 3) * self.frame_stack
+
+    def space(self) -> spaces.Space[Any]:
+        """The observation space: Dict(image HxWxC uint8, state float32[len(state_fields)]), or the state Box."""
+        state = spaces.Box(-np.inf, np.inf, shape=(len(self.state_fields),), dtype=np.float32)
+        if not self.images:
+            return state
+        w, h = self.image_size
+        image = spaces.Box(0, 255, shape=(h, w, self.channels), dtype=np.uint8)
+        return spaces.Dict({"image": image, "state": state})
+
+    def ground_offsets_m(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """(north, east) offsets (m) of the ground-truth risk grid's points from the vehicle, row-major."""
+        half = (self.ground_grid - 1) / 2.0
+        idx = (np.arange(self.ground_grid, dtype=np.float64) - half) * self.ground_cell_m
+        dn, de = np.meshgrid(idx, idx, indexing="ij")
+        return dn.ravel(), de.ravel()
 
 
 @dataclass(frozen=True)

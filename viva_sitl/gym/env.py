@@ -155,9 +155,7 @@ class LandingEnv(gym.Env[Any, NDArray[np.float32]]):
             else cfg.termination.max_episode_s
         )
         self.limits: Limits = replace(limits_of(self.trial_spec), timeout_s=self.max_episode_s)
-        half = (obs_cfg.ground_grid - 1) / 2.0
-        idx = (np.arange(obs_cfg.ground_grid, dtype=np.float64) - half) * obs_cfg.ground_cell_m
-        self._grid_dn_m, self._grid_de_m = (a.ravel() for a in np.meshgrid(idx, idx, indexing="ij"))
+        self._grid_dn_m, self._grid_de_m = obs_cfg.ground_offsets_m()
         self.state_fields = obs_cfg.state_fields
         self.metadata = {**self.metadata, "render_fps": cfg.control_hz}
 
@@ -166,15 +164,7 @@ class LandingEnv(gym.Env[Any, NDArray[np.float32]]):
         sim_cfg = replace(base, camera=replace(base.camera, width_px=w, height_px=h))
         # footage by name/path: this env owns it; a FootageSource passed in is shared (vector env) and not closed
         self._owns_footage = not isinstance(footage, FootageSource)
-        source = footage if isinstance(footage, FootageSource) else open_footage(
-            footage, altitude_m=sim_cfg.footage_alt_m, hfov_deg=sim_cfg.footage_hfov_deg,
-            gsd_m_per_px=sim_cfg.footage_gsd_m_per_px,
-        )  # fmt: skip
-        if isinstance(source, SyntheticField) and source.params.draw_ahead:
-            # which window the draw-ahead thread delivers depends on thread timing (a busy worker skips one), and
-            # windows differ by a grey level: draw in line so that seeded rollouts are bit-identical
-            source.params = replace(source.params, draw_ahead=False)
-        self.footage = source
+        self.footage = source = _env_footage(footage, sim_cfg)
         self.vehicle = Vehicle(
             sim_cfg, footage=source, geofence=True, super_resolution=_super_resolution(sim_cfg)
         )
@@ -196,12 +186,8 @@ class LandingEnv(gym.Env[Any, NDArray[np.float32]]):
         self.schedule = ControlSchedule(self.rate_hz, cfg.control_hz)  # physics steps per env step
 
         self.action_space = spaces.Box(-1.0, 1.0, shape=(4,), dtype=np.float32)
-        state_space = spaces.Box(-np.inf, np.inf, shape=(len(self.state_fields),), dtype=np.float32)
+        self.observation_space: spaces.Space[Any] = obs_cfg.space()
         self.image_size_hw = (h, w)
-        image_space = spaces.Box(0, 255, shape=(h, w, obs_cfg.channels), dtype=np.uint8)
-        self.observation_space: spaces.Space[Any] = (
-            spaces.Dict({"image": image_space, "state": state_space}) if obs_cfg.images else state_space
-        )
         self._frames: deque[NDArray[np.uint8]] = deque(maxlen=obs_cfg.frame_stack)
         self._k = 0  # control steps this episode
 
@@ -478,6 +464,19 @@ class LandingEnv(gym.Env[Any, NDArray[np.float32]]):
     def close(self) -> None:
         if self._owns_footage:
             self.vehicle.close()
+
+
+def _env_footage(footage: str | Path | FootageSource, cfg: SimConfig) -> FootageSource:
+    """`footage` opened with the config's footage geometry (a FootageSource as it is), a synthetic field drawn in
+    line."""
+    source = footage if isinstance(footage, FootageSource) else open_footage(
+        footage, altitude_m=cfg.footage_alt_m, hfov_deg=cfg.footage_hfov_deg, gsd_m_per_px=cfg.footage_gsd_m_per_px
+    )  # fmt: skip
+    if isinstance(source, SyntheticField) and source.params.draw_ahead:
+        # which window the draw-ahead thread delivers depends on thread timing (a busy worker skips one), and
+        # windows differ by a grey level: draw in line so that seeded rollouts are bit-identical
+        source.params = replace(source.params, draw_ahead=False)
+    return source
 
 
 def _super_resolution(config: SimConfig) -> Any:
