@@ -12,7 +12,9 @@ Vectorized over one shared footage decode: `SharedFootageVectorEnv` (or gymnasiu
 vectorization_mode="vector_entry_point")).
 Scenarios, termination and scores are the landing trials' (viva_sitl.evaluation): `spec=` a trials TOML or
 TrialSpec, reset(seed=s) flies what `viva-sitl trials run SPEC --seed s` flies, info["trial"] at the end is its score
-row. Seams: `Scorer` (scoring.py: reward) and `ScenarioDrawer` (scenario.py).
+row. Seams: `Scorer` (scoring.py: reward) and `ScenarioDrawer` (scenario.py). Settings: `LandingEnvConfig`
+(config.py: observation / action / termination / scenario groups; the flat keyword arguments build it); action
+modes: `ActionMode` objects (actions.py).
 """
 
 from __future__ import annotations
@@ -22,7 +24,17 @@ try:
 except ImportError as exc:  # pragma: no cover - depends on the install
     raise ImportError("viva_sitl.gym needs gymnasium: pip install 'viva-sitl[gym]'") from exc
 
-from viva_sitl.gym.env import STATE_FIELDS, LandingEnv, ground_truth_fields, land_assist_limits, overview_rgb
+from viva_sitl.gym.actions import ActionMode, AttitudeMode, VelocityMode, land_assist_limits
+from viva_sitl.gym.config import (
+    STATE_FIELDS,
+    ActionConfig,
+    LandingEnvConfig,
+    ObservationConfig,
+    ScenarioConfig,
+    TerminationConfig,
+    ground_truth_fields,
+)
+from viva_sitl.gym.env import FootageBinding, LandingEnv, overview_rgb
 from viva_sitl.gym.scenario import Scenario, ScenarioDrawer, SpecScenarioDrawer, TrialSpec, default_spec
 from viva_sitl.gym.scoring import LandingReward, RewardConfig, Scorer, StepScore
 from viva_sitl.gym.vector import SharedFootageVectorEnv
@@ -45,16 +57,25 @@ for _id, _kwargs in _VARIANTS.items():
 
 __all__ = [
     "STATE_FIELDS",
+    "ActionConfig",
+    "ActionMode",
+    "AttitudeMode",
+    "FootageBinding",
     "LandingEnv",
+    "LandingEnvConfig",
     "LandingReward",
+    "ObservationConfig",
     "RewardConfig",
     "Scenario",
+    "ScenarioConfig",
     "ScenarioDrawer",
     "Scorer",
     "SharedFootageVectorEnv",
     "SpecScenarioDrawer",
     "StepScore",
+    "TerminationConfig",
     "TrialSpec",
+    "VelocityMode",
     "default_spec",
     "ground_truth_fields",
     "land_assist_limits",

@@ -5,7 +5,12 @@
     obs, info = env.reset(seed=0)            # obs = {"image": HxWxC uint8 (RGB), "state": float32[10]}
     obs, reward, terminated, truncated, info = env.step(env.action_space.sample())
 
-Actions (`action_mode`):
+Settings: a LandingEnvConfig (viva_sitl.gym.config: observation / action / termination / scenario groups, `env_config=`)
+and/or the flat keyword arguments named below (action_mode, observation, image_size, spec, config, ...), which set
+its fields. The step is split as Gymnasium's FuncEnv, public: reset = next_scenario + initial; step = check_action +
+transition + step_result, step_result = reward + terminal + observation (SharedFootageVectorEnv drives these).
+
+Actions (`action_mode`, one viva_sitl.gym.actions.ActionMode object each):
 - "attitude" (default): viva-safeland DroneEnv's normalised [roll, pitch, yaw-rate, thrust] in [-1, 1]: roll =
   max_tilt_deg x a0, pitch = max_tilt_deg x a1 (its sign convention: +a1 = its +theta = nose down in NED terms is
   -pitch), yaw rate = max_yaw_rate_deg_s x a2 (its +psi is counter-clockwise seen from above), thrust = m g (1 + a3);
@@ -58,12 +63,11 @@ the objects, the vehicle and its camera footprint (RGB).
 
 from __future__ import annotations
 
-import math
 from collections import deque
 from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import cv2
 import gymnasium as gym
@@ -71,15 +75,22 @@ import numpy as np
 from gymnasium import spaces
 from numpy.typing import NDArray
 
-from viva_sitl.autopilot.types import FlightMode, PositionTarget
 from viva_sitl.config import SimConfig
-from viva_sitl.dynamics import EavCommand, EavState
+from viva_sitl.dynamics import EavState
 from viva_sitl.evaluation.ends import TrialEnd
 from viva_sitl.evaluation.episode import ControlSchedule, Episode, limits_of, prepare
 from viva_sitl.evaluation.monitor import Limits, TrialMonitor
 from viva_sitl.evaluation.spec import Scenario, TrialSpec, footage_box_of
 from viva_sitl.footage import FootageSource, open_footage
 from viva_sitl.footage.synthetic import SyntheticField
+from viva_sitl.gym.actions import ActionMode, action_mode, assisted_velocity, land_assist_limits
+from viva_sitl.gym.config import (
+    ACTION_MODES,
+    OBSERVATIONS,
+    STATE_FIELDS,
+    LandingEnvConfig,
+    ground_truth_fields,
+)
 from viva_sitl.gym.scenario import (
     ScenarioDrawer,
     SpecScenarioDrawer,
@@ -87,26 +98,34 @@ from viva_sitl.gym.scenario import (
     resolve_spec,
     with_footage,
 )
-from viva_sitl.gym.scoring import LandingReward, RewardConfig, Scorer
+from viva_sitl.gym.scoring import LandingReward, Scorer
 from viva_sitl.vehicle import Vehicle
 from viva_sitl.world import PEOPLE, WorldModel, world_from_source
 
-ACTION_MODES = ("attitude", "velocity", "velocity_land")
-OBSERVATIONS = ("image+state", "state")
-STATE_FIELDS = ("north_m", "east_m", "down_m", "v_north_m_s", "v_east_m_s", "v_down_m_s",
-                "roll_rad", "pitch_rad", "yaw_rad", "alt_agl_m")  # fmt: skip
+
+class FootageBinding(NamedTuple):
+    """Where an episode's views come from: `source` (None: the env's own), the footage offset (footage time at sim
+    time 0) and the control schedule's phase `k0`."""
+
+    source: FootageSource | None
+    offset_s: float
+    k0: int = 0
 
 
-def ground_truth_fields(grid: int) -> tuple[str, ...]:
-    """Names of the PRIVILEGED fields `ground_truth_obs=True` appends to the state vector (risk grid row-major from
-    the north-west corner, then the nearest person's offset and distance)."""
-    return tuple(f"risk_{i}_{j}" for i in range(grid) for j in range(grid)) + (
-        "person_north_m", "person_east_m", "person_dist_m",
-    )  # fmt: skip
+# a vector env's seam: (the scenario starting, the physics step) -> the copy's binding on the shared clock
+FootageClock = Callable[[Scenario, float], FootageBinding]
+
+StepResult = tuple[Any, float, bool, bool, dict[str, Any]]
 
 
 class LandingEnv(gym.Env[Any, NDArray[np.float32]]):
-    """Land the EAV over footage. See the module docstring for spaces, actions, reward and seams."""
+    """Land the EAV over footage. See the module docstring for spaces, actions, reward and seams.
+
+    Settings: `env_config` (LandingEnvConfig) and/or the flat keyword arguments (FLAT_KWARGS: action_mode,
+    observation, image_size, spec, config, ...), which set its fields. Seams: `footage` (a name, path or a shared
+    FootageSource), `world`, `scorer`, `scenario_drawer`, `footage_clock` (a vector env's shared clock).
+    The step split as Gymnasium's FuncEnv: `reset` = next_scenario + initial; `step` = check_action + transition +
+    step_result, where step_result = reward + terminal + observation (the vector env drives these)."""
 
     metadata: dict[str, Any] = {"render_modes": ["rgb_array"], "render_fps": 30}
 
@@ -114,134 +133,103 @@ class LandingEnv(gym.Env[Any, NDArray[np.float32]]):
         self,
         footage: str | Path | FootageSource | None = None,
         *,
-        spec: str | Path | TrialSpec | None = None,
-        action_mode: str = "attitude",
-        observation: str = "image+state",
-        image_size: tuple[int, int] = (160, 120),
-        grayscale: bool = False,
-        frame_stack: int = 1,
-        control_hz: float = 30.0,
-        max_episode_s: float | None = None,
-        config: SimConfig | None = None,
+        env_config: LandingEnvConfig | None = None,
+        render_mode: str | None = None,
         scenario_drawer: ScenarioDrawer | None = None,
-        reward: RewardConfig | None = None,
         scorer: Scorer | None = None,
         world: WorldModel | None = None,
-        max_tilt_deg: float = 15.0,
-        max_yaw_rate_deg_s: float = 30.0,
-        max_speed_m_s: float = 5.0,
-        max_vspeed_m_s: float = 3.0,
-        land_xy_m_s: float = 0.0,
-        ground_truth_obs: bool = False,
-        ground_grid: int = 7,
-        ground_cell_m: float = 4.0,
-        people_range_m: float = 30.0,
-        out_of_range: str = "clip",
-        render_mode: str | None = None,
-        overview_px: int = 800,
+        footage_clock: FootageClock | None = None,
+        **settings: Any,
     ) -> None:
-        if action_mode not in ACTION_MODES:
-            raise ValueError(f"action_mode must be one of {ACTION_MODES}, got {action_mode!r}")
-        if observation not in OBSERVATIONS:
-            raise ValueError(f"observation must be one of {OBSERVATIONS}, got {observation!r}")
-        if out_of_range not in ("clip", "raise"):
-            raise ValueError(f"out_of_range must be 'clip' or 'raise', got {out_of_range!r}")
+        cfg = LandingEnvConfig.from_kwargs(env_config, **settings)
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
-        w, h = (int(v) for v in image_size)
-        if w < 8 or h < 8 or frame_stack < 1:
-            raise ValueError(
-                f"image_size must be at least 8x8 and frame_stack >= 1, got {image_size}, {frame_stack}"
-            )
-        if not (control_hz > 0.0 and math.isfinite(control_hz)) or not (
-            max_episode_s is None or max_episode_s > 0.0
-        ):
-            raise ValueError("control_hz and max_episode_s must be positive")
-        if not (land_xy_m_s >= 0.0 and math.isfinite(land_xy_m_s)):
-            raise ValueError(f"land_xy_m_s must be a finite speed >= 0, got {land_xy_m_s!r}")
-        if ground_truth_obs and not (
-            isinstance(ground_grid, int) and ground_grid >= 1 and ground_cell_m > 0.0 and people_range_m > 0.0
-        ):
-            raise ValueError(
-                "ground_grid must be an integer >= 1, ground_cell_m and people_range_m positive, got "
-                f"{ground_grid!r}, {ground_cell_m!r}, {people_range_m!r}"
-            )
-        trial_spec = resolve_spec(spec) if spec is not None else None
+        self.config, self.render_mode, self.footage_clock = cfg, render_mode, footage_clock
+        obs_cfg = cfg.observation
+        self.trial_spec = self._trial_spec(footage, cfg.scenario.spec)
         if footage is None:
-            footage = trial_spec.footage[0] if trial_spec is not None else "synthetic"
-        if trial_spec is None:
-            trial_spec = default_spec(
-                footage.metadata.name if isinstance(footage, FootageSource) else str(footage)
-            )
-        elif not isinstance(footage, FootageSource):
-            trial_spec = with_footage(trial_spec, str(footage))
-        self.action_mode, self.observation, self.render_mode = action_mode, observation, render_mode
-        self.grayscale, self.frame_stack, self.control_hz = grayscale, int(frame_stack), float(control_hz)
-        self.trial_spec = trial_spec
-        self.max_episode_s = float(trial_spec.timeout_s if max_episode_s is None else max_episode_s)
-        self.limits: Limits = replace(limits_of(trial_spec), timeout_s=self.max_episode_s)
-        self.out_of_range, self.overview_px = out_of_range, overview_px
-        self.max_tilt_rad = math.radians(max_tilt_deg)
-        self.max_yaw_rate_rad_s = math.radians(max_yaw_rate_deg_s)
-        self.max_speed_m_s, self.max_vspeed_m_s = float(max_speed_m_s), float(max_vspeed_m_s)
-        self.land_xy_m_s = float(land_xy_m_s)
-        self.ground_truth_obs = bool(ground_truth_obs)
-        self.ground_grid, self.ground_cell_m = int(ground_grid), float(ground_cell_m)
-        self.people_range_m = float(people_range_m)
-        half = (self.ground_grid - 1) / 2.0
-        idx = (np.arange(self.ground_grid, dtype=np.float64) - half) * self.ground_cell_m
-        self._grid_dn_m, self._grid_de_m = (a.ravel() for a in np.meshgrid(idx, idx, indexing="ij"))
-        self.state_fields = STATE_FIELDS + (
-            ground_truth_fields(self.ground_grid) if self.ground_truth_obs else ()
+            footage = self.trial_spec.footage[0]
+        self.max_episode_s = float(
+            self.trial_spec.timeout_s
+            if cfg.termination.max_episode_s is None
+            else cfg.termination.max_episode_s
         )
-        self.metadata = {**self.metadata, "render_fps": self.control_hz}
+        self.limits: Limits = replace(limits_of(self.trial_spec), timeout_s=self.max_episode_s)
+        self._grid_dn_m, self._grid_de_m = obs_cfg.ground_offsets_m()
+        self.state_fields = obs_cfg.state_fields
+        self.metadata = {**self.metadata, "render_fps": cfg.control_hz}
 
-        base = config or SimConfig()
-        cfg = replace(base, camera=replace(base.camera, width_px=w, height_px=h))
+        w, h = obs_cfg.image_size
+        base = cfg.sim or SimConfig()
+        sim_cfg = replace(base, camera=replace(base.camera, width_px=w, height_px=h))
         # footage by name/path: this env owns it; a FootageSource passed in is shared (vector env) and not closed
         self._owns_footage = not isinstance(footage, FootageSource)
-        source = footage if isinstance(footage, FootageSource) else open_footage(
-            footage, altitude_m=cfg.footage_alt_m, hfov_deg=cfg.footage_hfov_deg, gsd_m_per_px=cfg.footage_gsd_m_per_px
-        )  # fmt: skip
-        if isinstance(source, SyntheticField) and source.params.draw_ahead:
-            # which window the draw-ahead thread delivers depends on thread timing (a busy worker skips one), and
-            # windows differ by a grey level: draw in line so that seeded rollouts are bit-identical
-            source.params = replace(source.params, draw_ahead=False)
-        self.footage = source
-        self.vehicle = Vehicle(cfg, footage=source, geofence=True, super_resolution=_super_resolution(cfg))
+        self.footage = source = _env_footage(footage, sim_cfg)
+        self.vehicle = Vehicle(
+            sim_cfg, footage=source, geofence=True, super_resolution=_super_resolution(sim_cfg)
+        )
         self._params0 = {n: self.vehicle.params.stored(n) for n in self.vehicle.params.names()}
         self.world = world if world is not None else world_from_source(source)
-        self.scorer: Scorer = scorer if scorer is not None else LandingReward(self.world, trial_spec, reward)
-        self.scenario_drawer: ScenarioDrawer = scenario_drawer or SpecScenarioDrawer(
-            trial_spec, footage_box_of(source)
+        self.scorer: Scorer = (
+            scorer if scorer is not None else LandingReward(self.world, self.trial_spec, cfg.reward)
         )
+        self.scenario_drawer: ScenarioDrawer = scenario_drawer or SpecScenarioDrawer(
+            self.trial_spec, footage_box_of(source)
+        )
+        self.actions: ActionMode = action_mode(cfg.action)
         # the scenario flown (footage_time_s: the footage clock at the start)
         self.scenario: Scenario | None = None
         self.episode: Episode | None = None  # the trial being flown (viva_sitl.evaluation.episode)
         self.trial_seed: int | None = None
         self.trial_index = 0
         self.rate_hz = 1.0 / self.vehicle.dt_s
-        self.schedule = ControlSchedule(self.rate_hz, self.control_hz)  # physics steps per env step
+        self.schedule = ControlSchedule(self.rate_hz, cfg.control_hz)  # physics steps per env step
 
         self.action_space = spaces.Box(-1.0, 1.0, shape=(4,), dtype=np.float32)
-        state_space = spaces.Box(-np.inf, np.inf, shape=(len(self.state_fields),), dtype=np.float32)
+        self.observation_space: spaces.Space[Any] = obs_cfg.space()
         self.image_size_hw = (h, w)
-        c = (1 if grayscale else 3) * self.frame_stack
-        image_space = spaces.Box(0, 255, shape=(h, w, c), dtype=np.uint8)
-        self.observation_space: spaces.Space[Any] = (
-            spaces.Dict({"image": image_space, "state": state_space})
-            if observation == "image+state"
-            else state_space
-        )
-        self._frames: deque[NDArray[np.uint8]] = deque(maxlen=self.frame_stack)
+        self._frames: deque[NDArray[np.uint8]] = deque(maxlen=obs_cfg.frame_stack)
         self._k = 0  # control steps this episode
-        # set by a vector env (bind_footage): (env, scenario) -> None puts this copy on its shared source, sets
-        # its footage offset and its schedule's phase on the vector env's global clock
-        self.footage_binder: Callable[[LandingEnv, Scenario], None] | None = None
-        # set by a vector env before each observation (frame_stack 1, RGB): where to write the view
-        self.view_out: NDArray[np.uint8] | None = None
-        self._yaw_cmd_rad = 0.0
-        self._done = True
+
+    @staticmethod
+    def _trial_spec(
+        footage: str | Path | FootageSource | None, spec: str | Path | TrialSpec | None
+    ) -> TrialSpec:
+        """The spec the episodes draw from: `spec` over `footage` (the spec's own footage without one), or the
+        default spec over `footage` (synthetic without one)."""
+        trial_spec = resolve_spec(spec) if spec is not None else None
+        if footage is None:
+            footage = trial_spec.footage[0] if trial_spec is not None else "synthetic"
+        if trial_spec is None:
+            return default_spec(footage.metadata.name if isinstance(footage, FootageSource) else str(footage))
+        if not isinstance(footage, FootageSource):
+            return with_footage(trial_spec, str(footage))
+        return trial_spec
+
+    # --- settings (read-only views of self.config) --------------------------------------------------
+    @property
+    def action_mode(self) -> str:
+        return self.config.action.mode
+
+    @property
+    def out_of_range(self) -> str:
+        return self.config.action.out_of_range
+
+    @property
+    def control_hz(self) -> float:
+        return self.config.control_hz
+
+    @property
+    def grayscale(self) -> bool:
+        return self.config.observation.grayscale
+
+    @property
+    def frame_stack(self) -> int:
+        return self.config.observation.frame_stack
+
+    @property
+    def ground_truth_obs(self) -> bool:
+        return self.config.observation.ground_truth_obs
 
     # --- helpers ----------------------------------------------------------------------------
     @property
@@ -250,19 +238,9 @@ class LandingEnv(gym.Env[Any, NDArray[np.float32]]):
 
     def assisted_velocity(self, vel_ned_m_s: tuple[float, float, float]) -> tuple[float, float, float]:
         """A commanded NED velocity limited by the landing assist at the vehicle's current altitude above ground
-        ("velocity_land" mode; land_assist_limits over the vehicle's MPC_LAND_* / MPC_Z_VEL_MAX_DN)."""
-        p, s = self.vehicle.params, self.vehicle.state
-        alt = self.vehicle.sim.params.ground_z_ned_m - float(s.pos_ned_m[2])
-        max_down, max_xy = land_assist_limits(
-            alt, land_speed_m_s=p.get("MPC_LAND_SPEED"), fast_down_m_s=p.get("MPC_Z_VEL_MAX_DN"),
-            alt1_m=p.get("MPC_LAND_ALT1"), alt2_m=p.get("MPC_LAND_ALT2"),
-            xy_land_m_s=self.land_xy_m_s, xy_fast_m_s=self.max_speed_m_s,
-        )  # fmt: skip
-        vn, ve, vd = vel_ned_m_s
-        h = math.hypot(vn, ve)
-        if h > max_xy:
-            vn, ve = vn * max_xy / h, ve * max_xy / h
-        return (vn, ve, min(vd, max_down))
+        ("velocity_land" mode; viva_sitl.gym.actions.assisted_velocity with this env's land_xy_m_s, max_speed_m_s)."""
+        a = self.config.action
+        return assisted_velocity(self.vehicle, vel_ned_m_s, float(a.land_xy_m_s), float(a.max_speed_m_s))
 
     @property
     def monitor(self) -> TrialMonitor | None:
@@ -275,7 +253,7 @@ class LandingEnv(gym.Env[Any, NDArray[np.float32]]):
         ground = self.vehicle.sim.params.ground_z_ned_m
         vec = np.array([p[0], p[1], p[2], v[0], v[1], v[2], s.roll_rad, s.pitch_rad, s.yaw_rad, ground - p[2]],
                        dtype=np.float32)  # fmt: skip
-        if not self.ground_truth_obs:
+        if not self.config.observation.ground_truth_obs:
             return vec
         return np.concatenate([vec, self.ground_truth(float(p[0]), float(p[1]), self.footage_time_s)])
 
@@ -289,7 +267,7 @@ class LandingEnv(gym.Env[Any, NDArray[np.float32]]):
             if self.world.has_objects
             else None
         )
-        r = self.people_range_m
+        r = self.config.observation.people_range_m
         if near is None:
             person = (0.0, 0.0, r)
         else:
@@ -303,21 +281,10 @@ class LandingEnv(gym.Env[Any, NDArray[np.float32]]):
         C-contiguous array to convert the RGB view into (a vector env's batch slot: no second copy)."""
         veh = self.vehicle
         veh.apply_gimbal()  # as Vehicle.render
-        if self.grayscale:
+        if self.config.observation.grayscale:
             rgb = veh.sim.render_rgb()  # the image only (no frame metadata), converted once to RGB
             return np.asarray(cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)[:, :, None], dtype=np.uint8)
         return veh.sim.render_rgb(out=out)
-
-    def _obs(self, new_view: NDArray[np.uint8] | None = None) -> Any:
-        state = self._state_vec(self.vehicle.state)
-        if self.observation == "state":
-            return state
-        out, self.view_out = self.view_out, None  # one observation only
-        self._frames.append(self.view(out) if new_view is None else new_view)
-        while len(self._frames) < self.frame_stack:
-            self._frames.appendleft(self._frames[0])
-        image = self._frames[0] if self.frame_stack == 1 else np.concatenate(list(self._frames), axis=2)
-        return {"image": image, "state": state}
 
     def check_action(self, action: Any) -> tuple[NDArray[np.float64], bool]:
         """The action as flown (float64, clipped unless out_of_range='raise') and whether it was clipped; ValueError
@@ -332,7 +299,7 @@ class LandingEnv(gym.Env[Any, NDArray[np.float32]]):
             raise ValueError(f"action must be finite, got {a.tolist()}")
         clipped = bool(np.any(np.abs(a) > 1.0))
         if clipped:
-            if self.out_of_range == "raise":
+            if self.config.action.out_of_range == "raise":
                 raise ValueError(f"action out of [-1, 1]: {a.tolist()}")
             a = np.clip(a, -1.0, 1.0)
         return a, clipped
@@ -343,6 +310,10 @@ class LandingEnv(gym.Env[Any, NDArray[np.float32]]):
     ) -> tuple[Any, dict[str, Any]]:
         """A new episode: trial 0 of `seed` (the trials' drawing), or the next trial without a seed. options:
         {"trial": k} flies trial k of the current seed; {"scenario": Scenario} flies that scenario."""
+        return self.initial(self.next_scenario(seed=seed, options=options))
+
+    def next_scenario(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> Scenario:
+        """The scenario reset(seed=, options=) flies (seeds the env's np_random as gymnasium's reset does)."""
         super().reset(seed=seed)
         opts = options or {}
         if seed is not None:
@@ -367,43 +338,38 @@ class LandingEnv(gym.Env[Any, NDArray[np.float32]]):
             raise ValueError(
                 f"gym environments start in the air, scenario {sc.index} starts on the {sc.start}"
             )
-        return self._start(sc)
+        return sc
 
-    def _start(self, sc: Scenario) -> tuple[Any, dict[str, Any]]:
-        """Set the vehicle up as every trial is (viva_sitl.evaluation.episode.prepare: the PX4 parameters back to the
-        env's, then the scenario's, the footage clock, the physics seed, the start pose), a vector env's binder
-        putting the copy on its shared footage and clock first."""
+    def initial(self, sc: Scenario, out: NDArray[np.uint8] | None = None) -> tuple[Any, dict[str, Any]]:
+        """Start an episode of scenario `sc` (FuncEnv's initial): the vehicle set up as every trial is
+        (viva_sitl.evaluation.episode.prepare: the PX4 parameters back to the env's, then the scenario's, the
+        footage clock, the physics seed, the start pose) on the footage binding (the footage clock's, a vector
+        env's shared source and clock; else this env's footage at the scenario's footage time), the action mode
+        started. Returns the first observation (its view rendered into `out`, see observation) and info."""
         veh = self.vehicle
-        veh.sim.footage_offset_s = sc.footage_time_s
-        self.schedule = ControlSchedule(self.rate_hz, self.control_hz)
-        if self.footage_binder is not None:
-            self.footage_binder(
-                self, sc
-            )  # a vector env: its shared source, the global footage clock and phase
+        binding = (
+            FootageBinding(None, sc.footage_time_s)
+            if self.footage_clock is None
+            else self.footage_clock(sc, veh.dt_s)
+        )
+        if binding.source is not None and veh.sim.footage is not binding.source:
+            # the same file, so the same geometry: renderer and region buffers stay valid
+            veh.sim.footage = self.footage = binding.source
+        veh.sim.footage_offset_s = binding.offset_s
+        self.schedule = ControlSchedule(self.rate_hz, self.config.control_hz, k0=binding.k0)
         if isinstance(self.footage, SyntheticField):
             self.footage.forget_windows()  # the views depend on this episode's poses only
         prepare(veh, sc, baseline_params=self._params0, footage_offset_s=veh.sim.footage_offset_s)
         self.episode = Episode(veh, sc, self.limits, gcs=True, prepare_vehicle=False)
         sc = self.scenario = self.episode.scenario  # its footage_time_s: the footage clock this copy flies
         state = veh.state
-        yaw_rad = math.radians(sc.yaw_deg)
-        self._yaw_cmd_rad = yaw_rad
-        if self.action_mode != "attitude":
-            ap = veh.autopilot
-            hold = PositionTarget(vel_ned_m_s=(0.0, 0.0, 0.0), yaw_rate_rad_s=0.0)
-            for out in (
-                ap.set_position_target(veh.time_s, hold),
-                ap.set_mode(veh.time_s, FlightMode.OFFBOARD),
-            ):
-                if not out.ok:
-                    raise RuntimeError(f"cannot start offboard control: {out.reason}")
+        self.actions.start(veh, sc)
         self.scorer.reset(sc, state, self.footage_time_s)
         self._k = 0
-        self._done = False
         self._frames.clear()
         info = self._info({})
         info.update(trial_seed=self.trial_seed, trial_index=sc.index)
-        return self._obs(), info
+        return self.observation(out), info
 
     def _info(self, score: dict[str, Any], clipped: bool = False) -> dict[str, Any]:
         return {
@@ -414,7 +380,7 @@ class LandingEnv(gym.Env[Any, NDArray[np.float32]]):
             "action_clipped": clipped,
         }
 
-    def step(self, action: Any) -> tuple[Any, float, bool, bool, dict[str, Any]]:
+    def step(self, action: Any) -> StepResult:
         if self.scenario is None:
             raise RuntimeError("call reset() before step()")
         a, clipped = self.check_action(action)
@@ -422,76 +388,65 @@ class LandingEnv(gym.Env[Any, NDArray[np.float32]]):
         return self.step_result(clipped)
 
     def transition(self, a: NDArray[np.float64]) -> None:
-        """Fly one control period with a checked action (check_action), each physics step the episode's (the
-        Vehicle loop, judged by the trial's referee as in the trials runner); the period stops early when the
-        trial ends. On the ground afterwards: disarm (force, as a pilot's disarm/kill at touchdown), the trial
-        ends "landed" one physics step later."""
+        """Fly one control period with a checked action (check_action) through the action mode, each physics step
+        the episode's (the Vehicle loop, judged by the trial's referee as in the trials runner); the period stops
+        early when the trial ends. On the ground afterwards: disarm (force, as a pilot's disarm/kill at touchdown),
+        the trial ends "landed" one physics step later."""
         veh = self.vehicle
         ep = self.episode
         assert ep is not None
-        mon = ep.monitor
         n = self.schedule.steps(self._k)
-        dt_ctrl = n * veh.dt_s
-        if self.action_mode == "attitude":
-            self._yaw_cmd_rad = math.remainder(
-                self._yaw_cmd_rad - float(a[2]) * self.max_yaw_rate_rad_s * dt_ctrl, 2.0 * math.pi
-            )
-            cmd = EavCommand(
-                roll_rad=float(a[0]) * self.max_tilt_rad,
-                pitch_rad=-float(a[1]) * self.max_tilt_rad,
-                yaw_rad=self._yaw_cmd_rad,
-                thrust_n=veh.sim.params.hover_thrust_n * (1.0 + float(a[3])),
-            )
-            for _ in range(n):
-                ep.step(cmd)
-                if mon.log.end is not None:
-                    break
-        else:
-            vel = (
-                float(a[0]) * self.max_speed_m_s,
-                float(a[1]) * self.max_speed_m_s,
-                float(a[2]) * self.max_vspeed_m_s,
-            )
-            yaw_rate = float(a[3]) * self.max_yaw_rate_rad_s
-            assist = self.action_mode == "velocity_land"
-            for i in range(n):
-                if i == 0 or assist:
-                    v = self.assisted_velocity(vel) if assist else vel
-                    out = veh.autopilot.set_position_target(
-                        veh.time_s, PositionTarget(vel_ned_m_s=v, yaw_rate_rad_s=yaw_rate)
-                    )
-                    if not out.ok:
-                        raise ValueError(f"velocity setpoint refused: {out.reason}")
-                ep.step(None)
-                if mon.log.end is not None:
-                    break
-        if mon.log.end is None and veh.state.landed and veh.autopilot.armed:
+        self.actions.fly(ep, veh, a, n)
+        if ep.monitor.log.end is None and veh.state.landed and veh.autopilot.armed:
             veh.autopilot.disarm(veh.time_s, force=True)
             ep.step(None)
         self._k += 1
 
-    def step_result(self, clipped: bool, new_view: NDArray[np.uint8] | None = None) -> tuple[Any, float, bool, bool, dict[str, Any]]:  # fmt: skip
-        """After `transition`: the observation, the reward, terminated / truncated and the info (the trial's score
-        row once it ended) — `step` is check_action + transition + step_result."""
-        veh, mon, sc = self.vehicle, self.monitor, self.scenario
-        assert mon is not None and sc is not None
+    def reward(self) -> tuple[float, dict[str, Any]]:
+        """After a transition, once: the Scorer's reward for the state reached (the scorer may end the trial), plus
+        its final reward over the trial's score row once the trial ended. Returns (reward, info): info["score"] the
+        scorer's step info, info["trial"] the score row when the trial ended."""
+        veh, mon = self.vehicle, self.monitor
+        assert mon is not None
         step = self.scorer.step(veh.state, self.footage_time_s)
         if step.terminated and mon.log.end is None:
             mon.end(veh, TrialEnd.SCORER, "the scorer ended the episode")
-        info = self._info(step.info, clipped)
+        info: dict[str, Any] = {"score": step.info}
         reward = float(step.reward)
-        end = mon.log.end
-        if end is not None:
+        if mon.log.end is not None:
             row = self.trial_row()
             reward += float(self.scorer.final(row))
             info["trial"] = row
-        return (
-            self._obs(new_view),
-            reward,
-            end is not None and end != TrialEnd.TIMEOUT,
-            end == TrialEnd.TIMEOUT,
-            info,
-        )
+        return reward, info
+
+    def terminal(self) -> tuple[bool, bool]:
+        """(terminated, truncated): the trial ended, by its time limit (truncated) or otherwise (terminated)."""
+        mon = self.monitor
+        end = None if mon is None else mon.log.end
+        return end is not None and end != TrialEnd.TIMEOUT, end == TrialEnd.TIMEOUT
+
+    def observation(self, out: NDArray[np.uint8] | None = None) -> Any:
+        """The observation of the state reached (after initial or a transition, once: with images, it renders the
+        new view and stacks it). `out`: where to render an RGB view (see view)."""
+        state = self._state_vec(self.vehicle.state)
+        if not self.config.observation.images:
+            return state
+        self._frames.append(self.view(out))
+        while len(self._frames) < self.config.observation.frame_stack:
+            self._frames.appendleft(self._frames[0])
+        stack = self.config.observation.frame_stack
+        image = self._frames[0] if stack == 1 else np.concatenate(list(self._frames), axis=2)
+        return {"image": image, "state": state}
+
+    def step_result(self, clipped: bool, out: NDArray[np.uint8] | None = None) -> StepResult:
+        """After `transition`: reward, terminal, info (the trial's score row once it ended) and observation (its
+        view rendered into `out`) — `step` is check_action + transition + step_result."""
+        reward, extra = self.reward()
+        terminated, truncated = self.terminal()
+        info = self._info(extra["score"], clipped)
+        if "trial" in extra:
+            info["trial"] = extra["trial"]
+        return self.observation(out), reward, terminated, truncated, info
 
     def trial_row(self) -> dict[str, Any]:
         """The trial's score row so far (final once the episode ended): viva_sitl.evaluation.scoring.score_trial over
@@ -504,11 +459,24 @@ class LandingEnv(gym.Env[Any, NDArray[np.float32]]):
     def render(self) -> NDArray[np.uint8] | None:  # type: ignore[override]
         if self.render_mode is None:
             return None
-        return overview_rgb(self, self.overview_px)
+        return overview_rgb(self, self.config.overview_px)
 
     def close(self) -> None:
         if self._owns_footage:
             self.vehicle.close()
+
+
+def _env_footage(footage: str | Path | FootageSource, cfg: SimConfig) -> FootageSource:
+    """`footage` opened with the config's footage geometry (a FootageSource as it is), a synthetic field drawn in
+    line."""
+    source = footage if isinstance(footage, FootageSource) else open_footage(
+        footage, altitude_m=cfg.footage_alt_m, hfov_deg=cfg.footage_hfov_deg, gsd_m_per_px=cfg.footage_gsd_m_per_px
+    )  # fmt: skip
+    if isinstance(source, SyntheticField) and source.params.draw_ahead:
+        # which window the draw-ahead thread delivers depends on thread timing (a busy worker skips one), and
+        # windows differ by a grey level: draw in line so that seeded rollouts are bit-identical
+        source.params = replace(source.params, draw_ahead=False)
+    return source
 
 
 def _super_resolution(config: SimConfig) -> Any:
@@ -518,28 +486,6 @@ def _super_resolution(config: SimConfig) -> Any:
     from viva_sitl.perception.from_config import super_resolution_from_config
 
     return super_resolution_from_config(config)
-
-
-def land_assist_limits(
-    alt_agl_m: float,
-    *,
-    land_speed_m_s: float,
-    fast_down_m_s: float,
-    alt1_m: float,
-    alt2_m: float,
-    xy_land_m_s: float,
-    xy_fast_m_s: float,
-) -> tuple[float, float]:
-    """(max descent, max horizontal speed) in m/s at `alt_agl_m` above ground, PX4 Land's altitude blend (as
-    viva_sitl.autopilot.tasks.land): at or below alt2_m the land values, at or above alt1_m no limit (inf, inf; the
-    autopilot's own limits apply), linear in between from the land values to the fast ones."""
-    if alt_agl_m >= alt1_m and alt1_m > alt2_m:
-        return math.inf, math.inf
-    if alt_agl_m <= alt2_m or alt1_m <= alt2_m:
-        return land_speed_m_s, xy_land_m_s
-    f = (alt_agl_m - alt2_m) / (alt1_m - alt2_m)
-    down = land_speed_m_s + (max(fast_down_m_s, land_speed_m_s) - land_speed_m_s) * f
-    return down, xy_land_m_s + (max(xy_fast_m_s, xy_land_m_s) - xy_land_m_s) * f
 
 
 def overview_rgb(env: LandingEnv, max_px: int) -> NDArray[np.uint8]:
@@ -569,6 +515,9 @@ def overview_rgb(env: LandingEnv, max_px: int) -> NDArray[np.uint8]:
 
 __all__ = [
     "ACTION_MODES",
+    "FootageBinding",
+    "FootageClock",
+    "LandingEnvConfig",
     "OBSERVATIONS",
     "STATE_FIELDS",
     "LandingEnv",

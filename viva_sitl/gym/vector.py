@@ -35,15 +35,20 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space, concatenate, create_empty_array
 from numpy.typing import NDArray
 
+from viva_sitl.evaluation.episode import ControlSchedule
 from viva_sitl.footage import FootageSource, VideoSource, open_footage
 from viva_sitl.footage.synthetic import SyntheticField
-from viva_sitl.gym.env import LandingEnv
+from viva_sitl.gym.config import FLAT_KWARGS, LandingEnvConfig, ScenarioConfig
+from viva_sitl.gym.env import FootageBinding, LandingEnv
 from viva_sitl.gym.scenario import Scenario, default_spec, resolve_spec, with_footage
 from viva_sitl.world import world_from_source
 
 
 class SharedFootageVectorEnv(VectorEnv[Any, Any, Any]):
-    """`num_envs` LandingEnv copies sharing the footage decode; `env_kwargs` are LandingEnv's keyword arguments."""
+    """`num_envs` LandingEnv copies sharing the footage decode; `env_kwargs` are LandingEnv's keyword arguments
+    (env_config= and/or the flat settings, scorer=, scenario_drawer=). Drives the copies through their public
+    FuncEnv-style split (next_scenario + initial, check_action + transition + step_result), and shares the clock
+    through their footage_clock seam."""
 
     def __init__(
         self,
@@ -59,14 +64,17 @@ class SharedFootageVectorEnv(VectorEnv[Any, Any, Any]):
         self.num_envs = int(num_envs)
         self.render_mode = render_mode
         self.convert_shared = convert_shared
-        spec = env_kwargs.pop("spec", None)
+        # the copies' settings (LandingEnvConfig from env_config= and the flat keyword arguments); the rest of
+        # env_kwargs are LandingEnv's seams (scorer, scenario_drawer)
+        settings = {k: env_kwargs.pop(k) for k in list(env_kwargs) if k in FLAT_KWARGS}
+        config = LandingEnvConfig.from_kwargs(env_kwargs.pop("env_config", None), **settings)
+        spec = config.scenario.spec
         trial_spec = resolve_spec(spec) if spec is not None else None
         if footage is None:
             footage = trial_spec.footage[0] if trial_spec is not None else "synthetic"
-        env_kwargs["spec"] = (
-            default_spec(str(footage)) if trial_spec is None else with_footage(trial_spec, str(footage))
-        )
-        cfg = env_kwargs.get("config")
+        spec = default_spec(str(footage)) if trial_spec is None else with_footage(trial_spec, str(footage))
+        self.config = replace(config, scenario=ScenarioConfig(spec))
+        cfg = config.sim
         opts: dict[str, Any] = {}
         if cfg is not None:
             opts = {"altitude_m": cfg.footage_alt_m, "hfov_deg": cfg.footage_hfov_deg,
@@ -86,9 +94,11 @@ class SharedFootageVectorEnv(VectorEnv[Any, Any, Any]):
         )
         if self._per_copy:
             self._owned = list(sources)
-        self.envs = [LandingEnv(src, render_mode=render_mode, world=world, **env_kwargs) for src in sources]
-        for env in self.envs:
-            env.footage_binder = self._bind
+        self.envs = [
+            LandingEnv(src, env_config=self.config, render_mode=render_mode, world=world,
+                       footage_clock=self._bind, **env_kwargs)
+            for src in sources
+        ]  # fmt: skip
         e0 = self.envs[0]
         self.single_observation_space = e0.observation_space
         self.single_action_space = e0.action_space
@@ -96,10 +106,12 @@ class SharedFootageVectorEnv(VectorEnv[Any, Any, Any]):
         self.action_space = batch_space(self.single_action_space, self.num_envs)
         self.metadata = {**e0.metadata, "autoreset_mode": AutoresetMode.NEXT_STEP}
         self._global_k = 0  # control steps since the last reset() (the shared schedule and clock)
-        self._schedule = e0.schedule  # the global control schedule (k0 = 0)
+        self._schedule = ControlSchedule(e0.rate_hz, self.config.control_hz)  # the global control schedule
         self._global_steps = 0  # physics steps since then
         self._autoreset = np.zeros(self.num_envs, dtype=np.bool_)
-        self._direct_views = e0.observation == "image+state" and e0.frame_stack == 1 and not e0.grayscale
+        obs_cfg = self.config.observation
+        self._direct_views = obs_cfg.images and obs_cfg.frame_stack == 1 and not obs_cfg.grayscale
+        self._raise_out_of_range = self.config.action.out_of_range == "raise"
 
     # --- sharing ----------------------------------------------------------------------------------
     def _source_for(self, offset_s: float) -> FootageSource:
@@ -108,21 +120,13 @@ class SharedFootageVectorEnv(VectorEnv[Any, Any, Any]):
             src = self._sources[offset_s] = self._open()
         return src
 
-    def _bind(self, env: LandingEnv, scenario: Scenario) -> None:
-        """LandingEnv's reset hook: put `env` on its offset slot's source and align its footage offset and physics
-        schedule to the global clock."""
+    def _bind(self, scenario: Scenario, dt_s: float) -> FootageBinding:
+        """The copies' footage clock (LandingEnv.initial asks it): a copy starting `scenario` flies its offset
+        slot's source (its own for per-copy footage), with the footage offset and control phase of the global
+        clock."""
         base = scenario.footage_time_s
-        sim = env.vehicle.sim
-        if self._per_copy:
-            sim.footage_offset_s = base + self._global_steps * env.vehicle.dt_s
-            env.schedule = replace(env.schedule, k0=self._global_k)
-            return
-        src = self._source_for(base)
-        if sim.footage is not src:
-            sim.footage = src  # the same file, so the same geometry: renderer and region buffers stay valid
-            env.footage = src
-        sim.footage_offset_s = base + self._global_steps * env.vehicle.dt_s
-        env.schedule = replace(env.schedule, k0=self._global_k)
+        source = None if self._per_copy else self._source_for(base)
+        return FootageBinding(source, base + self._global_steps * dt_s, self._global_k)
 
     # --- VectorEnv API ----------------------------------------------------------------------------
     def reset(
@@ -140,9 +144,8 @@ class SharedFootageVectorEnv(VectorEnv[Any, Any, Any]):
         infos: dict[str, Any] = {}
         obs = []
         out = self._new_batch()
-        for i in range(self.num_envs):
-            self._view_into(out, i)
-            o, info = self.envs[i].reset(seed=seeds[i], options=options)
+        for i, env in enumerate(self.envs):
+            o, info = env.initial(env.next_scenario(seed=seeds[i], options=options), self._slot(out, i))
             obs.append(o)
             infos = self._add_info(infos, info, i)
         self._autoreset[:] = False
@@ -171,11 +174,10 @@ class SharedFootageVectorEnv(VectorEnv[Any, Any, Any]):
         for i in order:
             env = self.envs[i]
             c = checked[i]
-            self._view_into(out, i)
             if c is None:
-                obs[i], info = env.reset()
+                obs[i], info = env.initial(env.next_scenario(), self._slot(out, i))
             else:
-                obs[i], r, term, trunc, info = env.step_result(c[1])
+                obs[i], r, term, trunc, info = env.step_result(c[1], self._slot(out, i))
                 rewards[i], terminated[i], truncated[i] = r, term, trunc
             infos = self._add_info(infos, info, i)
         self._autoreset = terminated | truncated
@@ -191,7 +193,7 @@ class SharedFootageVectorEnv(VectorEnv[Any, Any, Any]):
         for i, env in enumerate(self.envs):
             if self._autoreset[i]:
                 checked.append(None)
-            elif not finite[i] or (over[i] and env.out_of_range == "raise"):
+            elif not finite[i] or (over[i] and self._raise_out_of_range):
                 checked.append(env.check_action(a[i]))  # raises ValueError with the single env's message
             else:
                 checked.append((np.clip(a[i], -1.0, 1.0), True) if over[i] else (a[i], False))
@@ -201,7 +203,7 @@ class SharedFootageVectorEnv(VectorEnv[Any, Any, Any]):
         """Convert each shared video frame to BGR once when two or more copies will render it: their region reads
         are then slices of that one conversion (the decoder's own reuse, bit-identical to converting each region)
         instead of one YUV->BGR conversion per copy."""
-        if not self.convert_shared or self._per_copy or self.envs[0].observation == "state":
+        if not self.convert_shared or self._per_copy or not self.config.observation.images:
             return
         users: dict[tuple[int, int], list[int]] = {}
         for i in order:
@@ -216,8 +218,6 @@ class SharedFootageVectorEnv(VectorEnv[Any, Any, Any]):
     def _new_batch(self) -> Any:
         """A new batched observation to fill (each step's is the caller's to keep). With one RGB view per copy
         (frame_stack 1) the copies convert their views straight into its image slots (`LandingEnv.view(out=)`)."""
-        for env in self.envs:
-            env.view_out = None  # none left over from a step that raised
         if not self._direct_views:
             return None
         e0 = self.envs[0]
@@ -225,9 +225,10 @@ class SharedFootageVectorEnv(VectorEnv[Any, Any, Any]):
         return {"image": np.empty((self.num_envs, h, w, 3), np.uint8),
                 "state": np.empty((self.num_envs, len(e0.state_fields)), np.float32)}  # fmt: skip
 
-    def _view_into(self, out: Any, i: int) -> None:
-        if out is not None:
-            self.envs[i].view_out = out["image"][i]
+    @staticmethod
+    def _slot(out: Any, i: int) -> NDArray[np.uint8] | None:
+        """Copy i's image slot in the batch (where its view is rendered), None without a direct batch."""
+        return None if out is None else cast(NDArray[np.uint8], out["image"][i])
 
     def _batch(self, obs: list[Any], out: Any = None) -> Any:
         if out is None:
