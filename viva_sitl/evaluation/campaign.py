@@ -6,7 +6,13 @@
 Backends: "local" (default): `jobs` worker processes, each fed one trial at a time over its own pipe, so the
 parent always knows which trial a worker runs; a worker past the trial's wall limit is stopped (SIGTERM: it ends the
 processes its trial started; then SIGKILL) and that trial fails with end = wall_timeout, the others go on.
-"ray": one Ray task per trial (`ray.init(address)`; a task past the wall limit is cancelled).
+"ray": one Ray task per trial (`ray.init(address)`; a task past the wall limit is cancelled). On an existing cluster
+(`address`, e.g. one `ray start --head` made) the driver's working directory is shipped with the job (Ray's runtime_env
+working_dir, .gitignore/.rayignore honoured, .git/.venv/results left out), so `--pilot mymod:Cls` imports there as it
+does here; OUT is made absolute on the driver, and a worker that sees OUT (the same machine, or storage shared at the
+same path) runs in the driver's directory and writes its trial folder there; one that does not (another machine)
+runs in the shipped copy and sends its trial folder back to the driver. Connection failures (nothing at the address,
+token authentication) are one line (RuntimeError), not a Ray traceback.
 
 Each finished trial is written at once to OUT/trials/NNNN/result.json (next to its logs, results.py); Ctrl-C keeps
 them and `--resume` runs only the trials whose result is missing or an infrastructure error (an OUT that holds
@@ -18,13 +24,19 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import importlib
+import io
 import json
 import multiprocessing as mp
 import os
 import signal
+import socket
 import sys
+import tarfile
+import tempfile
 import threading
 import time
+import uuid
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from multiprocessing.connection import Connection
@@ -111,9 +123,40 @@ def _share_cores(threads: int) -> None:
     os.environ.setdefault(DECODE_THREADS_ENV, str(threads))  # the user's own setting wins
 
 
-def _ray_one(spec: TrialSpec, scenario: Scenario, pilot: str, out_dir: Path, slot: int, video: bool) -> Row:
+def _ray_one(spec: TrialSpec, scenario: Scenario, pilot: str, out_dir: str, slot: int, video: bool,
+             driver_cwd: str, marker: str) -> tuple[Row, bytes | None]:  # fmt: skip
+    """One trial on a Ray worker: (row, None) when it wrote its trial folder into the driver's OUT (the worker sees
+    the driver's marker file there), else (row, the folder as a .tar.gz) for the driver to unpack."""
     _share_cores(1)  # the task reserved one CPU (num_cpus=1)
-    return run_one(spec, scenario, pilot, out_dir, slot, video)
+    shared = os.path.exists(marker)
+    if shared and os.path.isdir(driver_cwd):
+        # the driver's own files: relative paths (footage, an external pilot's script) resolve as they do there
+        os.chdir(driver_cwd)
+    if shared:
+        row, packed = run_one(spec, scenario, pilot, Path(out_dir), slot, video), None
+    else:
+        with tempfile.TemporaryDirectory(prefix="viva-ray-trial-") as tmp:
+            row = run_one(spec, scenario, pilot, Path(tmp), slot, video)
+            packed = _pack_dir(trial_dir(Path(tmp), scenario.index))
+    if row.get("end") in INFRA_ENDS:
+        # where it failed: an import that works on the driver may not on this node
+        where = f"Ray worker on {socket.gethostname()}, cwd {os.getcwd()}"
+        row["end_detail"] = f"{row.get('end_detail')} ({where})"
+    return row, packed
+
+
+def _pack_dir(folder: Path) -> bytes:
+    buf = io.BytesIO()
+    with tarfile.open(fileobj=buf, mode="w:gz") as tar:
+        if folder.is_dir():
+            tar.add(folder, arcname=".")
+    return buf.getvalue()
+
+
+def _unpack_dir(data: bytes, folder: Path) -> None:
+    folder.mkdir(parents=True, exist_ok=True)
+    with tarfile.open(fileobj=io.BytesIO(data), mode="r:gz") as tar:
+        tar.extractall(folder, filter="data")  # the data filter: no absolute paths, links out or devices
 
 
 def _worker(slot: int, conn: Connection, results: Any, spec: TrialSpec, pilot: str, out_dir: str, video: bool,
@@ -224,16 +267,27 @@ def _local(spec: TrialSpec, pilot: str, todo: list[Scenario], out_dir: Path, job
 # ----------------------------------------------------------------------------------------- ray
 
 
-def _ray(spec: TrialSpec, pilot: str, todo: list[Scenario], out_dir: Path, jobs: int, video: bool,
-         wall_limit_s: float, address: str | None) -> Iterator[tuple[int, Row]]:  # fmt: skip
+def _ray_init(address: str | None, out_abs: Path) -> bool:
+    """Connect (or start a local Ray) unless this process already has Ray; True when it did (and so shuts it
+    down). Before OUT is touched: a cluster that cannot be reached leaves no empty run behind."""
     try:
         import ray
     except ImportError:
         raise RuntimeError("the ray backend needs Ray: pip install 'viva-sitl[trials-ray]'") from None
-    started = False
-    if not ray.is_initialized():
-        ray.init(address=address, include_dashboard=False, log_to_driver=False)
-        started = True
+    if ray.is_initialized():
+        return False
+    _ray_connect(ray, address, out_abs)
+    return True
+
+
+def _ray(spec: TrialSpec, pilot: str, todo: list[Scenario], out_dir: Path, jobs: int, video: bool,
+         wall_limit_s: float, started: bool) -> Iterator[tuple[int, Row]]:  # fmt: skip
+    import ray
+
+    out_abs = out_dir.resolve()  # the driver's OUT, whatever directory the workers run in
+    # a worker that sees this file writes into OUT itself; one that does not sends its trial folder back
+    marker = out_abs / f".ray-driver-{uuid.uuid4().hex}"
+    marker.write_text(f"{socket.gethostname()} {os.getpid()}\n")
     try:
         task = ray.remote(num_cpus=1, max_retries=0)(_ray_one)
         queue = list(todo)
@@ -242,16 +296,21 @@ def _ray(spec: TrialSpec, pilot: str, todo: list[Scenario], out_dir: Path, jobs:
         while queue or running:
             while queue and len(running) < jobs:
                 sc = queue.pop(0)
-                ref = task.remote(spec, sc, pilot, out_dir, slot % max(jobs, 1), video)
+                ref = task.remote(spec, sc, pilot, str(out_abs), slot % max(jobs, 1), video, os.getcwd(),
+                                  str(marker))  # fmt: skip
                 slot += 1
                 running[ref] = (sc.index, time.monotonic())
             done, _ = ray.wait(list(running), num_returns=1, timeout=0.5)
             for ref in done:
                 idx, _t = running.pop(ref)
                 try:
-                    row = ray.get(ref)
+                    row, packed = ray.get(ref)
+                    if packed is not None:
+                        _unpack_dir(packed, trial_dir(out_abs, idx))
                 except Exception as exc:  # noqa: BLE001 - a task that failed in Ray itself
-                    row = {**failed_row(spec, _by(todo, idx), "worker_died", f"ray: {exc}"), "pilot": pilot}
+                    lines = str(exc).strip().splitlines()  # a task's error ends with the error itself
+                    detail = f"ray: {type(exc).__name__}: {lines[-1] if lines else ''}"
+                    row = {**failed_row(spec, _by(todo, idx), "worker_died", detail), "pilot": pilot}
                 yield idx, row
             now = time.monotonic()
             for ref, (idx, t0) in list(running.items()):
@@ -261,8 +320,109 @@ def _ray(spec: TrialSpec, pilot: str, todo: list[Scenario], out_dir: Path, jobs:
                     yield idx, {**failed_row(spec, _by(todo, idx), "wall_timeout",
                                              f"trial took more than {wall_limit_s:g} s of wall time"), "pilot": pilot}  # fmt: skip
     finally:
+        marker.unlink(missing_ok=True)
         if started:
             ray.shutdown()
+
+
+# what is never shipped to a cluster with the driver's working directory (besides .gitignore / .rayignore)
+RAY_SHIP_EXCLUDES = (".git", ".venv", "venv", "__pycache__", ".mypy_cache", ".pytest_cache", ".ruff_cache",
+                     "node_modules", "trials-out")  # fmt: skip
+
+
+def ray_runtime_env(cwd: Path, out_abs: Path) -> dict[str, Any]:
+    """The runtime_env of a job on an existing cluster: the driver's directory, less OUT and the excludes."""
+    excludes = list(RAY_SHIP_EXCLUDES)
+    with contextlib.suppress(ValueError):
+        rel = out_abs.relative_to(cwd.resolve())
+        if rel.parts:
+            excludes.append("/" + rel.as_posix())  # gitignore syntax: anchored at the working dir
+    return {"working_dir": str(cwd), "excludes": excludes}
+
+
+def _ray_connect(ray: Any, address: str | None, out_abs: Path) -> None:
+    """ray.init: a local Ray (address None), or the cluster at `address` with the driver's directory shipped;
+    RuntimeError with one line naming the fix when the cluster cannot be reached or refuses this driver."""
+    if address is None:
+        ray.init(include_dashboard=False, log_to_driver=False)
+        return
+    _probe_ray_address(address)
+    cwd = Path.cwd()
+    try:
+        ray.init(address=address, include_dashboard=False, log_to_driver=False,
+                 runtime_env=ray_runtime_env(cwd, out_abs))  # fmt: skip
+    except ConnectionError as exc:
+        raise RuntimeError(f"cannot connect to the Ray cluster at {address}: {_first_line(exc)}") from None
+    except ValueError as exc:  # Ray refuses a working directory over its package size limit
+        raise RuntimeError(
+            f"cannot ship the working directory {cwd} to the Ray cluster: {_first_line(exc)} (run from the "
+            "directory of your pilot, or list big files in a .rayignore there)"
+        ) from None
+    except Exception as exc:
+        from ray.exceptions import AuthenticationError
+
+        if isinstance(exc, AuthenticationError):
+            raise RuntimeError(ray_auth_hint(address)) from None
+        raise
+
+
+def _first_line(exc: BaseException) -> str:
+    text = str(exc).strip()
+    return text.splitlines()[0] if text else type(exc).__name__
+
+
+def ray_auth_hint(address: str) -> str:
+    """The one line a driver refused by a token-authenticated cluster prints (Ray >= 2.5x: `ray start --head`
+    turns token authentication on when the head has a token, e.g. ~/.ray/auth_token, which any local
+    `ray.init()` writes; a driver given an explicit address never turns it on by itself)."""
+    if os.environ.get("RAY_AUTH_MODE", "").lower() == "token":
+        return (f"the Ray cluster at {address} refused this driver's token (RAY_AUTH_MODE=token): give it the "
+                "head's token (`ray get-auth-token` on the head) in RAY_AUTH_TOKEN, a file named by "
+                "RAY_AUTH_TOKEN_PATH, or ~/.ray/auth_token")  # fmt: skip
+    return (f"the Ray cluster at {address} uses token authentication: run the driver with RAY_AUTH_MODE=token and "
+            "the head's token in RAY_AUTH_TOKEN (print it on the head: `ray get-auth-token`), a file named by "
+            "RAY_AUTH_TOKEN_PATH, or ~/.ray/auth_token")  # fmt: skip
+
+
+def _probe_ray_address(address: str) -> None:
+    """Before ray.init (which retries for ~20-40 s and logs a warning a second): nothing listening at the
+    address, or a cluster refusing this driver's authentication, is one line at once."""
+    host, sep, port = address.rpartition(":")
+    if not sep or not port.isdigit() or "://" in address:
+        return  # "auto", ray://...: left to ray.init
+    try:
+        socket.create_connection((host.strip("[]"), int(port)), timeout=5.0).close()
+    except OSError as exc:
+        raise RuntimeError(
+            f"no Ray cluster at {address} ({exc.strerror or exc}): start one there with `ray start --head "
+            f"--port {port}`, or give the address it printed"
+        ) from None
+    try:  # Ray's own GCS client: what ray.init connects with (a private name: without it, ray.init says it)
+        gcs_client = importlib.import_module("ray._raylet").GcsClient
+        from ray.exceptions import AuthenticationError
+    except (ImportError, AttributeError):
+        return
+    with _stderr_to_devnull():  # its C++ side logs every failed try on fd 2
+        try:
+            gcs_client(address=address)
+        except AuthenticationError:
+            raise RuntimeError(ray_auth_hint(address)) from None
+        except Exception:  # noqa: BLE001 - anything else: ray.init says it
+            return
+
+
+@contextlib.contextmanager
+def _stderr_to_devnull() -> Iterator[None]:
+    sys.stderr.flush()
+    saved = os.dup(2)
+    null = os.open(os.devnull, os.O_WRONLY)
+    try:
+        os.dup2(null, 2)
+        yield
+    finally:
+        os.dup2(saved, 2)
+        os.close(saved)
+        os.close(null)
 
 
 def _by(todo: list[Scenario], idx: int) -> Scenario:
@@ -339,6 +499,11 @@ def run_campaign(
             raise ValueError(f"--trial {bad[0]}: no such trial (0..{len(scenarios) - 1})")
         scenarios = [scenarios[k] for k in only]
     check_out_dir(out, run_record(spec, pilot), resume=resume, force=force)
+    if backend not in ("local", "ray"):
+        raise ValueError(f"unknown backend {backend!r} (local, ray)")
+    # connected before OUT is touched (one that cannot be reached leaves no empty run); shut down by _ray, or at
+    # exit by Ray itself should what comes before _ray runs fail
+    ray_started = _ray_init(address, out.resolve()) if backend == "ray" else False
     out.mkdir(parents=True, exist_ok=True)
     if force:
         clear_results(out)
@@ -378,11 +543,9 @@ def run_campaign(
 
     preload_if_a_core_is_idle()
     if backend == "local":
-        gen = _local(spec, pilot, todo, out, jobs, video, limit)
-    elif backend == "ray":
-        gen = _ray(spec, pilot, todo, out, jobs, video, limit, address)
+        gen: Iterator[tuple[int, Row]] = _local(spec, pilot, todo, out, jobs, video, limit)
     else:
-        raise ValueError(f"unknown backend {backend!r} (local, ray)")
+        gen = _ray(spec, pilot, todo, out, jobs, video, limit, ray_started)
     try:
         for idx, row in gen:
             left -= 1

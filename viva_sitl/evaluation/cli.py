@@ -37,7 +37,12 @@ def build_parser() -> argparse.ArgumentParser:
         "-o", "--out", default=None, help="output directory (default: trials-out/<spec name>-<pilot>)"
     )
     r.add_argument("--backend", choices=["local", "ray"], default="local")
-    r.add_argument("--address", help="Ray cluster address (with --backend ray; default: a local Ray)")
+    r.add_argument(
+        "--address",
+        help="with --backend ray: the cluster to run on, HOST:PORT as `ray start --head --port PORT` printed "
+        "(the current directory is shipped to it; token auth: RAY_AUTH_MODE=token RAY_AUTH_TOKEN=...; see the "
+        "README's Ray section); default: a local Ray started for this run",
+    )
     g = r.add_mutually_exclusive_group()
     g.add_argument(
         "--resume", action="store_true",
@@ -279,6 +284,8 @@ def _run(args: argparse.Namespace) -> int:
         spec = dataclasses.replace(spec, pilot_latency_ms=args.pilot_latency_ms)
     pilot = args.pilot or spec.pilot
     check_external_pilot(pilot)
+    if args.address is not None and args.backend != "ray":
+        raise ValueError("--address is a Ray cluster's: give --backend ray too")
     safe = "".join(ch if ch.isalnum() or ch in "-_" else "_" for ch in pilot.split("/")[-1])[:40]
     name = f"{spec.name}-{safe}" + ("-trial-" + "-".join(map(str, args.trial)) if args.trial else "")
     out = Path(args.out) if args.out else Path("trials-out") / name
@@ -305,7 +312,11 @@ def _run(args: argparse.Namespace) -> int:
     if beyond:  # e.g. --resume --trial 2 in a run of 4: the others' results stay on disk, outside this report
         print(f"  note: {len(beyond)} finished trial(s) not in this run's scenarios ({_span(beyond)}) stay in "
               f"{out / 'trials'}; not in this report")  # fmt: skip
-    if camp.infra_errors():  # the harness failed: not a result of the pilot, so not a success of the run
+    infra = camp.infra_errors()
+    if infra:  # the harness failed: not a result of the pilot, so not a success of the run
+        first = infra[0]  # what failed (e.g. a Ray worker that cannot import the pilot), not only how many
+        print(f"  first harness error: trial {first['trial']}: {first['end']}: {first.get('end_detail') or '?'}",
+              file=sys.stderr)  # fmt: skip
         return 3
     return 0 if camp.complete else 1
 
