@@ -148,13 +148,15 @@ CASES: dict[str, Callable[[], str]] = {
     ),
 }  # fmt: skip
 
-# recorded from the pre-reshape code (6160a78); "/n": how many episodes ended in the rollout
+# recorded from the pre-reshape code (6160a78), then re-recorded once for the score row's new null column
+# pilot_latency_ms (schema v4; with that column removed the 6160a78 hashes matched exactly); "/n": how many episodes
+# ended in the rollout
 GOLDEN = {
-    "attitude-image": "260e03e44a5d3e9f5c327ebc9888f631/1",
-    "velocity_land-state-ground_truth": "03352e3f370f7d1bb1583d59182f9bce/1",
-    "velocity-grayscale-stack-clipped": "8667050fd7e721a4be3caea2521c4baa/1",
-    "vector-velocity_land-image": "1df54e932fa9cbb2cec6583222bb7b15/5",
-    "vector-attitude-state-clipped": "d4c4f3381352d33187930b0860b14c90/3",
+    "attitude-image": "32b83a47d1f07a1eb2d22ebc39168c37/1",
+    "velocity_land-state-ground_truth": "57a88592f89fedf915846f343b562e3f/1",
+    "velocity-grayscale-stack-clipped": "76b42f3275098f3fd7a2ca26a7d2fbbd/1",
+    "vector-velocity_land-image": "24200ee4982daf4373c454d96c0f8890/5",
+    "vector-attitude-state-clipped": "6a92bdd7627d4d97b32fff5a89c908a8/3",
 }
 
 
