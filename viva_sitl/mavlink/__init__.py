@@ -7,7 +7,8 @@
     endpoint.stats                # dict: rx/tx counts, bad frames, setpoints handled/rejected, ...
 
 Modules, one per concern: config (the `[mavlink]` table, the endpoint's counters and start-up errors; no pymavlink),
-codec (datagram parser, encoders, message ids), endpoint (links, peers, dispatch, tasks), telemetry (messages +
+codec (datagram parser, encoders, message ids), endpoint (the composition of links: transport, peers; dispatch:
+message -> handler; schedule: sim-clock streams; testing: the in-memory, sim-clock harness), telemetry (messages +
 per-link rates), commands (COMMAND_LONG/INT -> Autopilot), params, mission, offboard (setpoint decoding), camera
 (compid 100; its CameraLink protocol and data types in camera_link), logs (the MAVLink log protocol over the run's
 ULog files), calibration (MAV_CMD_PREFLIGHT_CALIBRATION with PX4's "[cal]" texts). A minimal paced vehicle for the
