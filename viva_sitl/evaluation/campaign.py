@@ -32,6 +32,7 @@ from pathlib import Path
 from queue import Empty
 from typing import Any
 
+from viva_sitl.evaluation.ends import TrialEnd
 from viva_sitl.evaluation.pilots import is_inprocess, make_pilot
 from viva_sitl.evaluation.results import (
     INFRA_ENDS,
@@ -76,12 +77,12 @@ def run_one(spec: TrialSpec, scenario: Scenario, pilot: str, out_dir: Path, slot
             row = run_external_trial(spec, scenario, pilot, tdir, slot=slot, video=video, frames=spec.frames,
                                      wall_limit_s=default_wall_limit_s(spec, pilot) * 0.9)  # fmt: skip
     except Exception as exc:  # noqa: BLE001 - one trial's failure never takes the campaign down
-        row = failed_row(spec, scenario, "trial_error", f"{type(exc).__name__}: {exc}")
+        row = failed_row(spec, scenario, TrialEnd.TRIAL_ERROR, f"{type(exc).__name__}: {exc}")
     row["pilot"] = pilot
     return row
 
 
-def failed_row(spec: TrialSpec, scenario: Scenario, end: str, detail: str) -> Row:
+def failed_row(spec: TrialSpec, scenario: Scenario, end: TrialEnd, detail: str) -> Row:
     """The row of a trial that produced no flight log (its worker died or hung)."""
     from viva_sitl.evaluation.monitor import TrialLog
 
@@ -200,8 +201,8 @@ def _local(spec: TrialSpec, pilot: str, todo: list[Scenario], out_dir: Path, job
                                else f"trial took more than {wall_limit_s:g} s of wall time (pilot hung?)")  # fmt: skip
                         stop(s)
                         pending -= 1
-                        yield idx, {**failed_row(spec, by_index[idx], "wall_timeout" if not dead else "worker_died",
-                                                 why), "pilot": pilot}  # fmt: skip
+                        yield idx, {**failed_row(spec, by_index[idx],
+                                                 TrialEnd.WORKER_DIED if dead else TrialEnd.WALL_TIMEOUT, why), "pilot": pilot}  # fmt: skip
                         slots[k] = start(k)
                         feed(k)
                 continue
@@ -251,14 +252,17 @@ def _ray(spec: TrialSpec, pilot: str, todo: list[Scenario], out_dir: Path, jobs:
                 try:
                     row = ray.get(ref)
                 except Exception as exc:  # noqa: BLE001 - a task that failed in Ray itself
-                    row = {**failed_row(spec, _by(todo, idx), "worker_died", f"ray: {exc}"), "pilot": pilot}
+                    row = {
+                        **failed_row(spec, _by(todo, idx), TrialEnd.WORKER_DIED, f"ray: {exc}"),
+                        "pilot": pilot,
+                    }
                 yield idx, row
             now = time.monotonic()
             for ref, (idx, t0) in list(running.items()):
                 if now - t0 > wall_limit_s:
                     ray.cancel(ref, force=True)
                     running.pop(ref)
-                    yield idx, {**failed_row(spec, _by(todo, idx), "wall_timeout",
+                    yield idx, {**failed_row(spec, _by(todo, idx), TrialEnd.WALL_TIMEOUT,
                                              f"trial took more than {wall_limit_s:g} s of wall time"), "pilot": pilot}  # fmt: skip
     finally:
         if started:

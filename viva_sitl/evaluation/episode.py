@@ -43,6 +43,7 @@ from typing import Any
 from viva_sitl.autopilot import Severity
 from viva_sitl.config import SimConfig
 from viva_sitl.dynamics import EavCommand
+from viva_sitl.evaluation.ends import TrialEnd
 from viva_sitl.evaluation.monitor import INJECTED_PREFIX, LAND_NOW_TEXT, Limits, TrialLog, TrialMonitor
 from viva_sitl.evaluation.scoring import score_trial
 from viva_sitl.evaluation.spec import Scenario, TrialSpec
@@ -219,7 +220,7 @@ class Episode:
             return
         self.monitor.record_autopilot_event(self.vehicle.time_s, severity, text)
 
-    def end(self, end: str, detail: str) -> None:
+    def end(self, end: TrialEnd, detail: str) -> None:
         """End the episode from outside (a pilot error, an interrupted run)."""
         self.monitor.end(self.vehicle, end, detail)
 

@@ -61,6 +61,7 @@ from typing import Any
 
 import numpy as np
 
+from viva_sitl.evaluation.ends import TrialEnd
 from viva_sitl.evaluation.monitor import TRAJECTORY_COLUMNS, TrialLog
 from viva_sitl.evaluation.spec import Criterion, Scenario, TrialSpec
 from viva_sitl.world import ALL, PEOPLE, VEHICLES, WorldModel
@@ -102,7 +103,7 @@ def score_trial(
         footage_time_s=sc.footage_time_s, land_at_s=sc.land_at_s,
         wind_speed_m_s=_r(math.hypot(sc.wind_ned_m_s[0], sc.wind_ned_m_s[1])),
         failures=";".join(f"{f.kind}@{f.at_s:g}" for f in sc.failures),
-        end=log.end, end_detail=log.end_detail, end_t_s=_r(log.end_t_s), landed=log.end == "landed",
+        end=log.end, end_detail=log.end_detail, end_t_s=_r(log.end_t_s), landed=log.end == TrialEnd.LANDED,
         flight_time_s=_r(log.end_t_s), path_length_m=_r(log.path_m, 3), energy_wh=_r(log.energy_wh, 5),
         time_outside_footage_s=_r(log.outside_s, 3), timing="lockstep", timing_ok=True,
     )  # fmt: skip
