@@ -39,6 +39,7 @@ from viva_sitl.evaluation.results import (
     Campaign,
     Row,
     _save_row,
+    as_row,
     check_out_dir,
     clear_results,
     finished_trials,
@@ -47,7 +48,7 @@ from viva_sitl.evaluation.results import (
     run_record,
     trial_dir,
 )
-from viva_sitl.evaluation.scoring import COLUMNS, score_trial
+from viva_sitl.evaluation.scoring import COLUMNS, ScoreRow, score_trial
 from viva_sitl.evaluation.spec import Scenario, TrialSpec, draw_scenarios
 
 
@@ -79,25 +80,21 @@ def run_one(spec: TrialSpec, scenario: Scenario, pilot: str, out_dir: Path, slot
     except Exception as exc:  # noqa: BLE001 - one trial's failure never takes the campaign down
         row = failed_row(spec, scenario, TrialEnd.TRIAL_ERROR, f"{type(exc).__name__}: {exc}")
     row["pilot"] = pilot
-    return row
+    return as_row(row)
 
 
-def failed_row(spec: TrialSpec, scenario: Scenario, end: TrialEnd, detail: str) -> Row:
+def failed_row(spec: TrialSpec, scenario: Scenario, end: TrialEnd, detail: str) -> ScoreRow:
     """The row of a trial that produced no flight log (its worker died or hung)."""
     from viva_sitl.evaluation.monitor import TrialLog
 
     log = TrialLog(end=end, end_detail=detail)
-    row = mark_infra(score_trial(scenario, log, None, spec))
+    row = score_trial(scenario, log, None, spec)
+    if end.infra:  # as results.mark_infra: an infrastructure error judges nothing
+        row["success"], row["criterion_failures"] = None, ""
     # no flight log: what the log would have measured is unavailable, not 0 (a 0 would pull the means down)
-    for key in (
-        "end_t_s",
-        "flight_time_s",
-        "path_length_m",
-        "energy_wh",
-        "time_outside_footage_s",
-        "failsafes",
-    ):
-        row[key] = None
+    row["end_t_s"] = row["flight_time_s"] = row["path_length_m"] = None
+    row["energy_wh"] = row["time_outside_footage_s"] = None
+    row["failsafes"] = None
     return row
 
 

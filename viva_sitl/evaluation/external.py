@@ -50,7 +50,7 @@ from typing import IO, Any
 from viva_sitl.evaluation.ends import TrialEnd
 from viva_sitl.evaluation.monitor import TrialLog
 from viva_sitl.evaluation.runner import limits_of, world_of
-from viva_sitl.evaluation.scoring import score_trial
+from viva_sitl.evaluation.scoring import ScoreRow, score_trial
 from viva_sitl.evaluation.session import TRIAL_PREFIX, write_scenario_file
 from viva_sitl.evaluation.spec import Scenario, TrialSpec
 
@@ -169,7 +169,7 @@ def run_external_trial(
     sitl_args: Sequence[str] = (),
     on_ready: Callable[[str], None] | None = None,
     abort_on_interrupt: bool = False,
-) -> dict[str, Any]:
+) -> ScoreRow:
     """Fly one trial against its own `viva-sitl run --scenario`; return the scored row.
 
     command None: no pilot program: a person flies it (the dashboard page, QGroundControl, a gamepad: `trials
@@ -332,7 +332,7 @@ def run_external_trial(
     return row
 
 
-def add_timing_columns(row: dict[str, Any], timing: str, record: dict[str, Any] | None) -> None:
+def add_timing_columns(row: ScoreRow, timing: str, record: dict[str, Any] | None) -> None:
     """The clock a trial ran on and what its pilot experienced (end.json "timing", viva_sitl.timing):
     timing_ok False marks a trial whose result depended on the machine (a starved realtime pilot, a lockstep
     pilot never idle, or no pilot process found to watch)."""
