@@ -17,7 +17,7 @@ from viva_sitl.autopilot.failsafe import (
     evaluate,
 )
 from viva_sitl.autopilot.params import ParamStore
-from viva_sitl.autopilot.types import FlightMode, Severity
+from viva_sitl.autopilot.types import CommandResult, FlightMode, Severity
 
 A = FailsafeAction
 AIR = (0.0, 0.0, -10.0)
@@ -98,3 +98,48 @@ def test_causes_carry_the_texts_the_statustexts_had() -> None:
         "No attitude estimate",
     )
     assert all(a != a.value for a in FailsafeAction)  # an action never equals an int (a parameter's code)
+
+
+@pytest.mark.parametrize(
+    ("action", "armed", "mode", "text"),
+    [
+        (A.HOLD, True, FlightMode.AUTO_LOITER, "Failsafe activated (no GCS): switching to Hold"),
+        (A.RTL, True, FlightMode.AUTO_RTL, "Failsafe activated (no GCS): switching to Return"),
+        (A.LAND, True, FlightMode.AUTO_LAND, "Failsafe activated (no GCS): switching to Land"),
+        (A.TERMINATE, False, None, "GCS lost: termination"),
+        (A.DISARM, False, None, "GCS lost: lockdown"),
+        (A.WARN, True, None, None),
+        (A.FALLBACK_STAB, True, None, None),
+    ],
+)
+def test_the_commander_takes_each_action(
+    action: FailsafeAction, armed: bool, mode: FlightMode | None, text: str | None
+) -> None:
+    """Hold / RTL / Land switch mode with a WARNING, Terminate / Disarm (PX4's Lockdown) disarm with an EMERGENCY
+    naming the cause, the rest change nothing."""
+    from tests.test_autopilot import Flight
+
+    f = Flight()
+    f.run(0.1)
+    assert f.ap.arm(f.t).result == CommandResult.ACCEPTED
+    assert f.ap.takeoff(f.t, None).ok
+    f.run(1.0)  # climbing in Takeoff
+    before = f.ap.mode
+    f.ap.pop_events()
+    f.ap.commander.failsafe(action, Cause.GCS_CONNECTION_LOSS)
+    assert f.ap.armed is armed
+    assert before not in (
+        FlightMode.AUTO_LOITER,
+        FlightMode.AUTO_RTL,
+        FlightMode.AUTO_LAND,
+    )  # each switch is seen
+    if text is None:  # nothing taken: the mode is the one before
+        assert f.ap.mode == before
+    if mode is not None:
+        assert f.ap.mode == mode
+    events = [(e.severity, e.text) for e in f.ap.pop_events()]
+    if text is None:
+        assert events == []
+    else:
+        sev = Severity.EMERGENCY if not armed else Severity.WARNING
+        assert (sev, text) in events, events
