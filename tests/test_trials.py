@@ -16,6 +16,7 @@ import pytest
 
 from viva_sitl.config import ConfigError
 from viva_sitl.evaluation.campaign import rows_equal, run_campaign
+from viva_sitl.evaluation.ends import TrialEnd
 from viva_sitl.evaluation.monitor import TRAJECTORY_COLUMNS, Touchdown, TrialLog
 from viva_sitl.evaluation.scoring import COLUMNS, score_trial
 from viva_sitl.evaluation.spec import Scenario, TrialSpec, draw_scenarios, load_spec, spec_from_dict
@@ -164,7 +165,9 @@ def test_scores_hand_computed_on_the_synthetic_field() -> None:
     sc = Scenario(index=0, seed=1, footage="synthetic", start="air", north_m=10.0, east_m=-16.5, altitude_m=20.0,
                   yaw_deg=0.0, footage_time_s=10.0, land_at_s=1.0, wind_ned_m_s=(0.0, 0.0, 0.0), gust_std_m_s=0.0,
                   params=(), failures=(), timeout_s=60.0)  # fmt: skip
-    log = TrialLog(end="landed", end_detail="touchdown and disarm", end_t_s=7.0, energy_wh=0.5, path_m=20.0)
+    log = TrialLog(
+        end=TrialEnd.LANDED, end_detail="touchdown and disarm", end_t_s=7.0, energy_wh=0.5, path_m=20.0
+    )
     for k in range(11):
         t = 0.5 * k
         row = dict.fromkeys(TRAJECTORY_COLUMNS, 0)
@@ -219,7 +222,7 @@ def test_motion_derived_objects_count_in_the_object_distance() -> None:
     sc = Scenario(index=0, seed=1, footage="synthetic", start="air", north_m=0.0, east_m=0.0, altitude_m=10.0,
                   yaw_deg=0.0, footage_time_s=0.0, land_at_s=0.0, wind_ned_m_s=(0.0, 0.0, 0.0), gust_std_m_s=0.0,
                   params=(), failures=(), timeout_s=60.0)  # fmt: skip
-    log = TrialLog(end="landed", end_detail="touchdown and disarm", end_t_s=5.0)
+    log = TrialLog(end=TrialEnd.LANDED, end_detail="touchdown and disarm", end_t_s=5.0)
     for k in range(9):
         t = 0.5 * k
         row = dict.fromkeys(TRAJECTORY_COLUMNS, 0)
@@ -251,7 +254,7 @@ def test_a_class_not_annotated_is_unavailable_not_absent() -> None:
     sc = Scenario(index=0, seed=1, footage="synthetic", start="air", north_m=0.0, east_m=0.0, altitude_m=5.0,
                   yaw_deg=0.0, footage_time_s=0.0, land_at_s=0.0, wind_ned_m_s=(0.0, 0.0, 0.0), gust_std_m_s=0.0,
                   params=(), failures=(), timeout_s=60.0)  # fmt: skip
-    log = TrialLog(end="landed", end_detail="touchdown and disarm", end_t_s=6.0)
+    log = TrialLog(end=TrialEnd.LANDED, end_detail="touchdown and disarm", end_t_s=6.0)
     for k in range(11):
         row = dict.fromkeys(TRAJECTORY_COLUMNS, 0)
         row.update(t_s=0.5 * k, down_m=-(5.0 - 0.5 * k), armed=1)
@@ -302,7 +305,9 @@ def test_scores_without_ground_truth_are_unavailable_not_zero(nogt_clip: Path) -
     sc = Scenario(index=0, seed=1, footage=str(nogt_clip), start="air", north_m=0.0, east_m=0.0, altitude_m=10.0,
                   yaw_deg=0.0, footage_time_s=0.0, land_at_s=1.0, wind_ned_m_s=(0.0, 0.0, 0.0), gust_std_m_s=0.0,
                   params=(), failures=(), timeout_s=60.0)  # fmt: skip
-    log = TrialLog(end="landed", end_t_s=9.0, rows=[tuple(dict.fromkeys(TRAJECTORY_COLUMNS, 0.0).values())])
+    log = TrialLog(
+        end=TrialEnd.LANDED, end_t_s=9.0, rows=[tuple(dict.fromkeys(TRAJECTORY_COLUMNS, 0.0).values())]
+    )
     log.touchdown = Touchdown(8.0, 0.0, 0.0, 0.5, 0.0)
     r = score_trial(sc, log, world, TrialSpec())
     for key in ("dist_person_m", "min_dist_person_m", "dist_vehicle_m", "min_dist_vehicle_m", "risk_level"):

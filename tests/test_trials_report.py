@@ -366,12 +366,13 @@ def test_a_trial_without_flight_log_reports_unavailable_not_zero() -> None:
     """A worker that died or hung leaves no log: its flight time, path, energy are null, and the aggregates
     (means, n) only count the trials that flew."""
     from viva_sitl.evaluation.campaign import failed_row
+    from viva_sitl.evaluation.ends import TrialEnd
     from viva_sitl.evaluation.spec import draw_scenarios, load_spec
     from viva_sitl.evaluation.stats import aggregate
 
     spec = load_spec(SPEC)
     sc = draw_scenarios(spec, 1)[0]
-    row = failed_row(spec, sc, "worker_died", "worker died (exit code -9)")
+    row = failed_row(spec, sc, TrialEnd.WORKER_DIED, "worker died (exit code -9)")
     # an infrastructure error judges nothing: success unknown, and the aggregate leaves it out (counted apart)
     assert row["end"] == "worker_died" and row["landed"] is False and row["success"] is None
     for key in ("end_t_s", "flight_time_s", "path_length_m", "energy_wh", "time_outside_footage_s", "failsafes",

@@ -52,7 +52,7 @@ import numpy as np
 
 from viva_sitl.autopilot.commander import MODE_NAMES, POSITION_MODES, Commander
 from viva_sitl.autopilot.context import FlightContext, InsideFn
-from viva_sitl.autopilot.failsafe import battery_level, battery_warning
+from viva_sitl.autopilot.failsafe import Cause, FailsafeAction, battery_level, battery_warning
 from viva_sitl.autopilot.failures import (
     GPS_NOAID_TIMEOUT_S,
     SENSOR_NAMES,
@@ -444,7 +444,7 @@ class Autopilot:
                 or self.failures.is_active(FailureUnit.SENSOR_GYRO)
             )
         ):
-            self.commander.failsafe(5, "attitude estimate invalid", kind="No attitude estimate")
+            self.commander.failsafe(FailsafeAction.TERMINATE, Cause.ATTITUDE_INVALID)
 
     def announce(self, severity: Severity, text: str) -> None:
         """A message from outside the flight logic (the trial's "land now", an operator note) sent as the

@@ -17,12 +17,15 @@ from viva_sitl.autopilot.context import FlightContext
 from viva_sitl.autopilot.failsafe import (
     Action,
     ApplyFailsafe,
+    Cause,
+    FailsafeAction,
     FailsafeFlags,
     FailsafeInputs,
     HoldAt,
     Notify,
     SwitchMode,
     evaluate,
+    from_gf_act_param,
 )
 from viva_sitl.autopilot.failsafe import (
     quiet as failsafe_quiet,
@@ -35,6 +38,11 @@ from viva_sitl.autopilot.tasks import MANUAL_MODES, FlightTasks
 from viva_sitl.autopilot.types import ACCEPTED, CommandResult, FlightMode, Outcome, Severity
 
 MAX_TAKEOFF_ALT_M = 1000.0
+# the failsafe actions that switch mode (the mode, the word in the STATUSTEXT), and those that disarm
+_FAILSAFE_MODES = {FailsafeAction.HOLD: (FlightMode.AUTO_LOITER, "Hold"),
+                   FailsafeAction.RTL: (FlightMode.AUTO_RTL, "Return"),
+                   FailsafeAction.LAND: (FlightMode.AUTO_LAND, "Land")}  # fmt: skip
+_DISARM_TEXT = {FailsafeAction.TERMINATE: "termination", FailsafeAction.DISARM: "lockdown"}
 # PX4's mode_req_prevent_arming (of the modes this vehicle has): arming is refused while one of them is selected.
 # Selecting them while disarmed is allowed (PX4 allows every mode change while disarmed); on disarming, the mode
 # returns to the last one the user selected that allows arming (PX4's UserModeIntention::onDisarm).
@@ -87,7 +95,9 @@ class Commander:
         pos = ctx.pos
         if not ctx.footage_ok(float(pos[0]), float(pos[1])):
             return denied("Arming denied: outside footage (geofence)")
-        if ctx.params.get_int("GF_ACTION") != 0 and not ctx.fence_ok(float(pos[0]), float(pos[1])):
+        if from_gf_act_param(ctx.params.get_int("GF_ACTION")) is not FailsafeAction.NONE and not ctx.fence_ok(
+            float(pos[0]), float(pos[1])
+        ):
             return denied("Arming denied: vehicle outside geofence")
         if ctx.battery_remaining <= ctx.params.get("BAT_CRIT_THR"):
             return denied("Arming denied: battery too low")
@@ -375,7 +385,7 @@ class Commander:
     def check_failsafes(self, now_s: float) -> None:
         ctx, tasks = self.ctx, self.tasks
         inside: bool | None = None
-        if ctx.footage_action() != 0 and now_s >= self._gf_next_check_s:
+        if ctx.footage_action() is not FailsafeAction.NONE and now_s >= self._gf_next_check_s:
             self._gf_next_check_s = now_s + GEOFENCE_CHECK_S
             pos = ctx.pos
             inside = ctx.is_inside(float(pos[0]), float(pos[1]))
@@ -430,18 +440,16 @@ class Commander:
             if action.pos_ned_m is not None:
                 self.tasks.hold.hold_at(np.array(action.pos_ned_m, dtype=np.float64))
         elif isinstance(action, ApplyFailsafe):
-            self.failsafe(action.action, action.reason, kind=action.kind)
+            self.failsafe(action.action, action.cause)
 
-    def failsafe(self, action: int, reason: str, *, kind: str) -> None:
-        """Apply a PX4 failsafe action code: 1 Hold, 2 Return, 3 Land, 5 Terminate, 6 Lockdown (disarm)."""
-        now = self.ctx.now_s
-        modes = {1: (FlightMode.AUTO_LOITER, "Hold"), 2: (FlightMode.AUTO_RTL, "Return"),
-                 3: (FlightMode.AUTO_LAND, "Land")}  # fmt: skip
-        if action in (5, 6):
-            self.do_disarm(f"{kind}: {'termination' if action == 5 else 'lockdown'}", Severity.EMERGENCY)
+    def failsafe(self, action: FailsafeAction, cause: Cause) -> None:
+        """Take a failsafe action: Hold, RTL and Land switch mode; Terminate and Disarm (PX4's "Lockdown") disarm;
+        the others (none, a warning, a manual fallback) do nothing here."""
+        if action in _DISARM_TEXT:
+            self.do_disarm(f"{cause.kind}: {_DISARM_TEXT[action]}", Severity.EMERGENCY)
             return
-        if action not in modes:
+        if action not in _FAILSAFE_MODES:
             return
-        mode, what = modes[action]
-        self.tasks.enter(mode, now)
-        self.ctx.event(Severity.WARNING, f"Failsafe activated ({reason}): switching to {what}")
+        mode, what = _FAILSAFE_MODES[action]
+        self.tasks.enter(mode, self.ctx.now_s)
+        self.ctx.event(Severity.WARNING, f"Failsafe activated ({cause.reason}): switching to {what}")

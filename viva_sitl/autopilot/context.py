@@ -16,6 +16,7 @@ from numpy.typing import NDArray
 
 from viva_sitl.autopilot.battery import Battery, BatteryConfig
 from viva_sitl.autopilot.control import Airframe, Gains, PositionController, TrajectorySetpoint
+from viva_sitl.autopilot.failsafe import FLOWN_ACTIONS, FailsafeAction, from_gf_act_param
 from viva_sitl.autopilot.geofence import Geofence, RallyPoint
 from viva_sitl.autopilot.params import SIM_EAV_PARAMS, ParamStore
 from viva_sitl.autopilot.types import Event, FlightMode, Severity
@@ -104,14 +105,17 @@ class FlightContext:
         except Exception:
             return False
 
-    def footage_action(self) -> int:
-        """SIM_FTG_FENCE: what the footage edge does (GF_ACTION's codes; 0 off, 1 warn, 2 Hold ... 5 Land)."""
-        return self.params.get_int("SIM_FTG_FENCE") if self.inside is not None else 0
+    def footage_action(self) -> FailsafeAction:
+        """SIM_FTG_FENCE: what the footage edge does (GF_ACTION's codes; 0 off, 1 warn, 2 Hold ... 5 Land; NONE
+        without a footage test)."""
+        if self.inside is None:
+            return FailsafeAction.NONE
+        return from_gf_act_param(self.params.get_int("SIM_FTG_FENCE"))
 
     def footage_ok(self, north_m: float, east_m: float) -> bool:
         """False only where the footage edge is a hard fence (SIM_FTG_FENCE >= 2, Hold or stricter) and the
         camera at that point would not see footage: arming, repositioning and mission upload are refused there."""
-        return self.footage_action() < 2 or self.is_inside(north_m, east_m)
+        return self.footage_action() not in FLOWN_ACTIONS or self.is_inside(north_m, east_m)
 
     def fence_ok(self, north_m: float, east_m: float) -> bool:
         """Inside the uploaded geofence (no fence: everywhere)."""

@@ -10,10 +10,16 @@ the GF_MAX_HOR_DIST / GF_MAX_VER_DIST cylinder (GF_ACTION, once per breach, in t
 SIM_FTG_FENCE and GF_ACTION share PX4's geofence action codes: 0 none, 1 warning, 2 Hold, 3 Return, 4 Terminate,
 5 Land. The footage edge defaults to 1 (a STATUSTEXT once per exit: unchanged PX4 code flies beyond the footage, the
 camera shows the fill there); Hold holds where the camera last saw footage.
+
+The parameters hold PX4's integer codes, and each parameter numbers its choices its own way (NAV_DLL_ACT 3 is Land,
+GF_ACTION 3 is Return). They become a typed `FailsafeAction` at the boundary, in the `from_*_param` functions named
+after PX4's (failsafe.cpp fromNavDllOrRclActParam, fromGfActParam, fromOffboardLossActParam); past it only the enum is
+compared. `Cause` says why, as PX4's failsafe framework does, with the texts the STATUSTEXTs carry.
 """
 
 from __future__ import annotations
 
+import enum
 from dataclasses import dataclass, replace
 
 from viva_sitl.autopilot.geofence import FenceLimits, Geofence, breach_reason
@@ -21,13 +27,73 @@ from viva_sitl.autopilot.params import ParamStore
 from viva_sitl.autopilot.types import FlightMode, Severity
 
 _MANUAL_MODES = frozenset({FlightMode.MANUAL, FlightMode.STABILIZED, FlightMode.ALTCTL, FlightMode.POSCTL})
-_NAV_ACTIONS = (
-    1,
-    2,
-    3,
-    5,
-    6,
-)  # PX4 failsafe action codes this vehicle flies: Hold, Return, Land, Terminate, Lockdown
+
+
+class FailsafeAction(enum.Enum):
+    """What a failsafe does (PX4 FailsafeBase::Action; later members take precedence there). Not an IntEnum on
+    purpose: the parameters' codes differ per parameter, so an action never compares equal to a code."""
+
+    NONE = 0
+    WARN = 1
+    FALLBACK_POSCTRL = 2
+    FALLBACK_ALTCTRL = 3
+    FALLBACK_STAB = 4
+    HOLD = 5
+    RTL = 6
+    LAND = 7
+    DESCEND = 8
+    DISARM = 9  # PX4's "Lockdown" choice of NAV_DLL_ACT / COM_OBL_RC_ACT
+    TERMINATE = 10
+
+
+class Cause(enum.Enum):
+    """Why a failsafe acts (PX4 FailsafeBase::Cause, with the causes this vehicle has): `reason` goes into
+    "Failsafe activated (reason): switching to ...", `kind` into the disarm text "kind: termination"."""
+
+    OFFBOARD_LOSS = ("no offboard", "Offboard lost")
+    MANUAL_CONTROL_LOSS = ("manual control lost", "RC lost")
+    GCS_CONNECTION_LOSS = ("no GCS", "GCS lost")
+    GEOFENCE = ("geofence", "Geofence")
+    ATTITUDE_INVALID = ("attitude estimate invalid", "No attitude estimate")
+
+    @property
+    def reason(self) -> str:
+        return self.value[0]
+
+    @property
+    def kind(self) -> str:
+        return self.value[1]
+
+
+_A = FailsafeAction
+# NAV_DLL_ACT / NAV_RCL_ACT: 0 off, 1 Hold, 2 Return, 3 Land, 5 Terminate, 6 Lockdown (4 and others: none)
+_NAV_ACT = {1: _A.HOLD, 2: _A.RTL, 3: _A.LAND, 5: _A.TERMINATE, 6: _A.DISARM}
+# GF_ACTION / SIM_FTG_FENCE: 0 none, 1 warning, 2 Hold, 3 Return, 4 Terminate, 5 Land
+_GF_ACT = {0: _A.NONE, 1: _A.WARN, 2: _A.HOLD, 3: _A.RTL, 4: _A.TERMINATE, 5: _A.LAND}
+# COM_OBL_RC_ACT: 0 Position, 1 Altitude, 2 Manual (these three need RC), 3 Return, 4 Land, 5 Hold, 6 Terminate,
+# 7 Disarm (others: Hold)
+_OBL_ACT = {0: _A.FALLBACK_POSCTRL, 1: _A.FALLBACK_ALTCTRL, 2: _A.FALLBACK_STAB, 3: _A.RTL, 4: _A.LAND,
+            5: _A.HOLD, 6: _A.TERMINATE, 7: _A.DISARM}  # fmt: skip
+# the fallbacks to a manual mode (they need manual control; without it they become Hold, as PX4 v1.14)
+_FALLBACK_MODE = {_A.FALLBACK_POSCTRL: FlightMode.POSCTL, _A.FALLBACK_ALTCTRL: FlightMode.ALTCTL,
+                  _A.FALLBACK_STAB: FlightMode.STABILIZED}  # fmt: skip
+# the actions that take the vehicle over (a mode, or a disarm): not none, a warning or a manual fallback
+FLOWN_ACTIONS = frozenset({_A.HOLD, _A.RTL, _A.LAND, _A.TERMINATE, _A.DISARM})
+
+
+def from_nav_dll_or_rcl_act_param(code: int) -> FailsafeAction:
+    """NAV_DLL_ACT / NAV_RCL_ACT -> the action (NONE: off, or a code this vehicle does not fly)."""
+    return _NAV_ACT.get(code, FailsafeAction.NONE)
+
+
+def from_gf_act_param(code: int) -> FailsafeAction:
+    """GF_ACTION / SIM_FTG_FENCE -> the action (NONE: 0 or a code out of range)."""
+    return _GF_ACT.get(code, FailsafeAction.NONE)
+
+
+def from_offboard_loss_act_param(code: int) -> FailsafeAction:
+    """COM_OBL_RC_ACT -> the action (HOLD: a code out of range)."""
+    return _OBL_ACT.get(code, FailsafeAction.HOLD)
 
 
 @dataclass(frozen=True)
@@ -67,11 +133,10 @@ class SwitchMode:
 
 @dataclass(frozen=True)
 class ApplyFailsafe:
-    """A PX4 failsafe action code: 1 Hold, 2 Return, 3 Land, 5 Terminate, 6 Lockdown (5 and 6 disarm)."""
+    """Take `action` (one of FLOWN_ACTIONS: Hold, RTL and Land switch mode, Terminate and Disarm disarm)."""
 
-    action: int
-    reason: str
-    kind: str
+    action: FailsafeAction
+    cause: Cause
 
 
 @dataclass(frozen=True)
@@ -89,56 +154,55 @@ class Notify:
 
 Action = SwitchMode | ApplyFailsafe | HoldAt | Notify
 
-_OBL_TO_ACTION = {0: 1, 1: 1, 2: 1, 3: 2, 4: 3, 5: 1, 6: 5, 7: 6}  # COM_OBL_RC_ACT without RC -> action code
-_GF_TO_ACTION = {2: 1, 3: 2, 4: 5, 5: 3}  # GF_ACTION / SIM_FTG_FENCE (>= 2) -> failsafe action code
-_OBL_TO_MODE = {0: FlightMode.POSCTL, 1: FlightMode.ALTCTL, 2: FlightMode.STABILIZED}
-
 
 def evaluate(inp: FailsafeInputs, flags: FailsafeFlags, p: ParamStore) -> tuple[FailsafeFlags, list[Action]]:
     """The actions due now and the new flags (reads the parameters only)."""
     out: list[Action] = []
     # Offboard loss.
     if inp.mode == FlightMode.OFFBOARD and inp.now_s - inp.offboard_last_s > p.get("COM_OF_LOSS_T"):
-        act = p.get_int("COM_OBL_RC_ACT")
-        if act in _OBL_TO_MODE and inp.manual_fresh:
-            target = _OBL_TO_MODE[act]
+        act = from_offboard_loss_act_param(p.get_int("COM_OBL_RC_ACT"))
+        if act in _FALLBACK_MODE and inp.manual_fresh:
+            target = _FALLBACK_MODE[act]
             out.append(SwitchMode(target, f"Failsafe activated (offboard lost): switching to {target.name}"))
         elif not inp.armed:
             out.append(SwitchMode(FlightMode.AUTO_LOITER))
         else:
-            out.append(ApplyFailsafe(_OBL_TO_ACTION.get(act, 1), "no offboard", "Offboard lost"))
+            act = FailsafeAction.HOLD if act in _FALLBACK_MODE else act
+            out.append(ApplyFailsafe(act, Cause.OFFBOARD_LOSS))
     # Manual control loss in manual modes (once per loss).
     if inp.mode in _MANUAL_MODES and inp.armed and not inp.manual_fresh:
         if not flags.rc_lost_handled:
             flags = replace(flags, rc_lost_handled=True)
-            act = p.get_int("NAV_RCL_ACT")
-            out.append(ApplyFailsafe(act if act in _NAV_ACTIONS else 1, "manual control lost", "RC lost"))
+            act = from_nav_dll_or_rcl_act_param(p.get_int("NAV_RCL_ACT"))
+            # off (0) or a code not flown: Hold (PX4 switches to Hold as a plain mode change there)
+            act = act if act in FLOWN_ACTIONS else FailsafeAction.HOLD
+            out.append(ApplyFailsafe(act, Cause.MANUAL_CONTROL_LOSS))
     elif inp.manual_fresh:
         flags = replace(flags, rc_lost_handled=False)
     # Ground-station link loss (only once a GCS has been seen).
     if inp.gcs_seen and not flags.dll_lost and inp.now_s - inp.gcs_last_s > p.get("COM_DL_LOSS_T"):
         flags = replace(flags, dll_lost=True)
-        act = p.get_int("NAV_DLL_ACT")
+        act = from_nav_dll_or_rcl_act_param(p.get_int("NAV_DLL_ACT"))
         out.append(Notify(Severity.CRITICAL, "Connection to ground station lost"))
-        if inp.in_air and act in _NAV_ACTIONS:
-            out.append(ApplyFailsafe(act, "no GCS", "GCS lost"))
+        if inp.in_air and act in FLOWN_ACTIONS:
+            out.append(ApplyFailsafe(act, Cause.GCS_CONNECTION_LOSS))
     # The footage edge (SIM_FTG_FENCE).
     if inp.inside is True:
         flags = replace(flags, gf_outside=False, last_inside_ned_m=inp.pos_ned_m)
     elif inp.inside is False and not flags.gf_outside:
         flags = replace(flags, gf_outside=True)
-        act = p.get_int("SIM_FTG_FENCE")
-        if inp.in_air and act == 1:
+        act = from_gf_act_param(p.get_int("SIM_FTG_FENCE"))
+        if inp.in_air and act is FailsafeAction.WARN:
             out.append(Notify(Severity.WARNING, "Outside the footage: the camera sees no ground imagery"))
-        elif inp.in_air and act >= 2:
+        elif inp.in_air and act in FLOWN_ACTIONS:
             out.append(Notify(Severity.CRITICAL, "Geofence breached: outside footage"))
-            if act == 2:
+            if act is FailsafeAction.HOLD:
                 last = flags.last_inside_ned_m
                 # hold where the camera still saw footage, at the current altitude
                 out.append(HoldAt(None if last is None else (last[0], last[1], inp.pos_ned_m[2])))
                 out.append(Notify(Severity.WARNING, "Failsafe activated (geofence): switching to Hold"))
             else:
-                out.append(ApplyFailsafe(_GF_TO_ACTION[act], "geofence", "Geofence"))
+                out.append(ApplyFailsafe(act, Cause.GEOFENCE))
     # The uploaded geofence and the home cylinder (GF_ACTION).
     if inp.geofence is not None:
         limits = FenceLimits(p.get("GF_MAX_HOR_DIST"), p.get("GF_MAX_VER_DIST"))
@@ -147,11 +211,11 @@ def evaluate(inp: FailsafeInputs, flags: FailsafeFlags, p: ParamStore) -> tuple[
             flags = replace(flags, fence_breached=False)
         elif inp.in_air and not flags.fence_breached:
             flags = replace(flags, fence_breached=True)
-            act = p.get_int("GF_ACTION")
-            if act >= 1:
+            act = from_gf_act_param(p.get_int("GF_ACTION"))
+            if act is not FailsafeAction.NONE:
                 out.append(Notify(Severity.CRITICAL, f"Geofence breached: {reason}"))
-            if act >= 2:
-                out.append(ApplyFailsafe(_GF_TO_ACTION[act], "geofence", "Geofence"))
+            if act in FLOWN_ACTIONS:
+                out.append(ApplyFailsafe(act, Cause.GEOFENCE))
     return flags, out
 
 

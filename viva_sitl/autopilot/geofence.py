@@ -16,7 +16,6 @@ gives surprising regions); PX4 refuses polygons with fewer than 3 vertices too.
 
 from __future__ import annotations
 
-import enum
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -29,17 +28,6 @@ from viva_sitl.autopilot.setpoints import MAX_ABS_POS_M
 PointNE = tuple[float, float]
 Pos3 = Sequence[float] | NDArray[np.float64]  # NED metres
 MAX_FENCE_VERTICES = 500  # per polygon: bounds the O(n^2) self-intersection test
-
-
-class GeofenceAction(enum.IntEnum):
-    """GF_ACTION values (PX4)."""
-
-    NONE = 0
-    WARNING = 1
-    HOLD = 2
-    RETURN = 3
-    TERMINATE = 4
-    LAND = 5
 
 
 @dataclass(frozen=True)

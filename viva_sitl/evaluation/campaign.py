@@ -44,12 +44,14 @@ from pathlib import Path
 from queue import Empty
 from typing import Any
 
+from viva_sitl.evaluation.ends import TrialEnd
 from viva_sitl.evaluation.pilots import is_inprocess, make_pilot
 from viva_sitl.evaluation.results import (
     INFRA_ENDS,
     Campaign,
     Row,
     _save_row,
+    as_row,
     check_out_dir,
     clear_results,
     finished_trials,
@@ -58,7 +60,7 @@ from viva_sitl.evaluation.results import (
     run_record,
     trial_dir,
 )
-from viva_sitl.evaluation.scoring import COLUMNS, score_trial
+from viva_sitl.evaluation.scoring import COLUMNS, ScoreRow, score_trial
 from viva_sitl.evaluation.spec import Scenario, TrialSpec, draw_scenarios
 
 
@@ -88,27 +90,23 @@ def run_one(spec: TrialSpec, scenario: Scenario, pilot: str, out_dir: Path, slot
             row = run_external_trial(spec, scenario, pilot, tdir, slot=slot, video=video, frames=spec.frames,
                                      wall_limit_s=default_wall_limit_s(spec, pilot) * 0.9)  # fmt: skip
     except Exception as exc:  # noqa: BLE001 - one trial's failure never takes the campaign down
-        row = failed_row(spec, scenario, "trial_error", f"{type(exc).__name__}: {exc}")
+        row = failed_row(spec, scenario, TrialEnd.TRIAL_ERROR, f"{type(exc).__name__}: {exc}")
     row["pilot"] = pilot
-    return row
+    return as_row(row)
 
 
-def failed_row(spec: TrialSpec, scenario: Scenario, end: str, detail: str) -> Row:
+def failed_row(spec: TrialSpec, scenario: Scenario, end: TrialEnd, detail: str) -> ScoreRow:
     """The row of a trial that produced no flight log (its worker died or hung)."""
     from viva_sitl.evaluation.monitor import TrialLog
 
     log = TrialLog(end=end, end_detail=detail)
-    row = mark_infra(score_trial(scenario, log, None, spec))
+    row = score_trial(scenario, log, None, spec)
+    if end.infra:  # as results.mark_infra: an infrastructure error judges nothing
+        row["success"], row["criterion_failures"] = None, ""
     # no flight log: what the log would have measured is unavailable, not 0 (a 0 would pull the means down)
-    for key in (
-        "end_t_s",
-        "flight_time_s",
-        "path_length_m",
-        "energy_wh",
-        "time_outside_footage_s",
-        "failsafes",
-    ):
-        row[key] = None
+    row["end_t_s"] = row["flight_time_s"] = row["path_length_m"] = None
+    row["energy_wh"] = row["time_outside_footage_s"] = None
+    row["failsafes"] = None
     return row
 
 
@@ -243,8 +241,8 @@ def _local(spec: TrialSpec, pilot: str, todo: list[Scenario], out_dir: Path, job
                                else f"trial took more than {wall_limit_s:g} s of wall time (pilot hung?)")  # fmt: skip
                         stop(s)
                         pending -= 1
-                        yield idx, {**failed_row(spec, by_index[idx], "wall_timeout" if not dead else "worker_died",
-                                                 why), "pilot": pilot}  # fmt: skip
+                        yield idx, {**failed_row(spec, by_index[idx],
+                                                 TrialEnd.WORKER_DIED if dead else TrialEnd.WALL_TIMEOUT, why), "pilot": pilot}  # fmt: skip
                         slots[k] = start(k)
                         feed(k)
                 continue
@@ -310,14 +308,14 @@ def _ray(spec: TrialSpec, pilot: str, todo: list[Scenario], out_dir: Path, jobs:
                 except Exception as exc:  # noqa: BLE001 - a task that failed in Ray itself
                     lines = str(exc).strip().splitlines()  # a task's error ends with the error itself
                     detail = f"ray: {type(exc).__name__}: {lines[-1] if lines else ''}"
-                    row = {**failed_row(spec, _by(todo, idx), "worker_died", detail), "pilot": pilot}
+                    row = {**failed_row(spec, _by(todo, idx), TrialEnd.WORKER_DIED, detail), "pilot": pilot}
                 yield idx, row
             now = time.monotonic()
             for ref, (idx, t0) in list(running.items()):
                 if now - t0 > wall_limit_s:
                     ray.cancel(ref, force=True)
                     running.pop(ref)
-                    yield idx, {**failed_row(spec, _by(todo, idx), "wall_timeout",
+                    yield idx, {**failed_row(spec, _by(todo, idx), TrialEnd.WALL_TIMEOUT,
                                              f"trial took more than {wall_limit_s:g} s of wall time"), "pilot": pilot}  # fmt: skip
     finally:
         marker.unlink(missing_ok=True)

@@ -15,6 +15,7 @@ from viva_sitl.cliargs import add_timing_flags, positive_float
 from viva_sitl.cliargs import nonneg_int as _nonneg_int
 from viva_sitl.cliargs import port as _port
 from viva_sitl.cliargs import pos_int as _pos_int
+from viva_sitl.evaluation.ends import TrialEnd
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -361,7 +362,7 @@ def _fly(args: argparse.Namespace) -> int:
         flush=True,
     )
     _say_if_no_figures("  ")
-    return 130 if row["end"] == "aborted" else 0
+    return 130 if row["end"] == TrialEnd.ABORTED else 0
 
 
 def _mismatch_gate(docs: list[tuple[str, dict[str, Any]]], base: int, allow: bool) -> list[str] | None:

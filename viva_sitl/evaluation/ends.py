@@ -29,6 +29,11 @@ class TrialEnd(enum.StrEnum):
         return _MESSAGES[self]
 
     @property
+    def infra(self) -> bool:
+        """The harness's failure, not the pilot's (INFRA_ENDS)."""
+        return self in INFRA_ENDS
+
+    @property
     def flown(self) -> bool:
         """The vehicle's own outcome (landed, crash, left the footage, ran out of time), not a program failure."""
         return self in (
@@ -39,6 +44,17 @@ class TrialEnd(enum.StrEnum):
             TrialEnd.SCORER,
         )
 
+
+# trial ends that are the harness's failure, not the pilot's: the runner raised, the worker process died, the
+# vehicle process (`viva-sitl run`) did not start or stopped early. They are kept out of the success rate and the
+# scores, counted on their own, make `trials run` exit 3, and `--resume` runs them again. (A row read back from
+# JSON holds a plain string: `in` compares by value, so `row["end"] in INFRA_ENDS` works on either.)
+INFRA_ENDS: tuple[TrialEnd, ...] = (
+    TrialEnd.TRIAL_ERROR,
+    TrialEnd.WORKER_DIED,
+    TrialEnd.SITL_ERROR,
+    TrialEnd.SITL_STOPPED,
+)
 
 _MESSAGES: dict[TrialEnd, str] = {
     TrialEnd.LANDED: "touched down and disarmed",
@@ -55,4 +71,4 @@ _MESSAGES: dict[TrialEnd, str] = {
     TrialEnd.TRIAL_ERROR: "the harness raised while running the trial",
 }
 
-__all__ = ["TrialEnd"]
+__all__ = ["INFRA_ENDS", "TrialEnd"]

@@ -38,13 +38,13 @@ import dataclasses
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any
 
 from viva_sitl.autopilot import Severity
 from viva_sitl.config import SimConfig
 from viva_sitl.dynamics import EavCommand
+from viva_sitl.evaluation.ends import TrialEnd
 from viva_sitl.evaluation.monitor import INJECTED_PREFIX, LAND_NOW_TEXT, Limits, TrialLog, TrialMonitor
-from viva_sitl.evaluation.scoring import score_trial
+from viva_sitl.evaluation.scoring import ScoreRow, score_trial
 from viva_sitl.evaluation.spec import Scenario, TrialSpec
 from viva_sitl.vehicle import Vehicle
 from viva_sitl.world import WorldModel
@@ -219,12 +219,12 @@ class Episode:
             return
         self.monitor.record_autopilot_event(self.vehicle.time_s, severity, text)
 
-    def end(self, end: str, detail: str) -> None:
+    def end(self, end: TrialEnd, detail: str) -> None:
         """End the episode from outside (a pilot error, an interrupted run)."""
         self.monitor.end(self.vehicle, end, detail)
 
     # --- result ---------------------------------------------------------------------------------------
-    def row(self, world: WorldModel, spec: TrialSpec) -> dict[str, Any]:
+    def row(self, world: WorldModel, spec: TrialSpec) -> ScoreRow:
         """The score row of the trial (final once `done`): viva_sitl.evaluation.scoring.score_trial."""
         return score_trial(self.scenario, self.monitor.log, world, spec)
 

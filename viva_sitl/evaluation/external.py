@@ -47,9 +47,10 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import IO, Any
 
+from viva_sitl.evaluation.ends import TrialEnd
 from viva_sitl.evaluation.monitor import TrialLog
 from viva_sitl.evaluation.runner import limits_of, world_of
-from viva_sitl.evaluation.scoring import score_trial
+from viva_sitl.evaluation.scoring import ScoreRow, score_trial
 from viva_sitl.evaluation.session import TRIAL_PREFIX, write_scenario_file
 from viva_sitl.evaluation.spec import Scenario, TrialSpec
 
@@ -168,7 +169,7 @@ def run_external_trial(
     sitl_args: Sequence[str] = (),
     on_ready: Callable[[str], None] | None = None,
     abort_on_interrupt: bool = False,
-) -> dict[str, Any]:
+) -> ScoreRow:
     """Fly one trial against its own `viva-sitl run --scenario`; return the scored row.
 
     command None: no pilot program: a person flies it (the dashboard page, QGroundControl, a gamepad: `trials
@@ -216,7 +217,7 @@ def run_external_trial(
     limit = wall_limit_s if wall_limit_s is not None else trial_wall_limit_s(spec)
     sitl: subprocess.Popen[bytes] | None = None
     pilot: subprocess.Popen[bytes] | None = None
-    end_override: tuple[str, str] | None = None
+    end_override: tuple[TrialEnd, str] | None = None
     pilot_note = ""
     aborted = threading.Event()
     old_handlers: dict[int, Any] = {}
@@ -238,10 +239,10 @@ def run_external_trial(
                 spump.event.wait(0.2)
                 spump.event.clear()
             if aborted.is_set():
-                end_override = ("aborted", "stopped by the user before the trial started")
+                end_override = (TrialEnd.ABORTED, "stopped by the user before the trial started")
             elif READY_PREFIX not in spump.hits:
                 tail = " | ".join(spump.tail[-3:])
-                end_override = ("sitl_error", f"viva-sitl run did not start: {tail}"[:400])
+                end_override = (TrialEnd.SITL_ERROR, f"viva-sitl run did not start: {tail}"[:400])
             else:
                 if on_ready is not None:
                     on_ready(spump.hits[READY_PREFIX].rstrip())
@@ -249,7 +250,7 @@ def run_external_trial(
                     pilot = _start(pcmd, env=env, split_stderr=True) if pcmd is not None else None
                 except OSError as exc:
                     assert pcmd is not None
-                    end_override = ("pilot_error", f"cannot start the pilot {pcmd[0]!r}: {exc}")
+                    end_override = (TrialEnd.PILOT_ERROR, f"cannot start the pilot {pcmd[0]!r}: {exc}")
                 if pilot is not None:
                     plock = threading.Lock()  # stdout and stderr into the one pilot.log, line by line
                     ppump = _Pump(pilot.stdout, plog, (), plock)
@@ -258,10 +259,16 @@ def run_external_trial(
                     epump.start()
                 while end_override is None and sitl.poll() is None and TRIAL_PREFIX not in spump.hits:
                     if aborted.is_set():
-                        end_override = ("aborted", "stopped by the user (Ctrl-C) before the trial ended")
+                        end_override = (
+                            TrialEnd.ABORTED,
+                            "stopped by the user (Ctrl-C) before the trial ended",
+                        )
                         break
                     if time.perf_counter() - wall0 > limit:
-                        end_override = ("wall_timeout", f"trial took more than {limit:g} s of wall time")
+                        end_override = (
+                            TrialEnd.WALL_TIMEOUT,
+                            f"trial took more than {limit:g} s of wall time",
+                        )
                         break
                     if pilot is not None and pilot.poll() is not None and not pilot_note:
                         rc = pilot.returncode
@@ -274,7 +281,7 @@ def run_external_trial(
                                 if rc < 0 and -rc in signal.valid_signals()
                                 else rc
                             )
-                            end_override = ("pilot_error", f"pilot exited with code {why} before the trial ended"
+                            end_override = (TrialEnd.PILOT_ERROR, f"pilot exited with code {why} before the trial ended"
                                             + (f": {last}"[:400] if last else ""))  # fmt: skip
                             pilot_note = f"pilot exited with code {rc}"
                             break
@@ -302,18 +309,20 @@ def run_external_trial(
     try:
         log = TrialLog.read(trial_dir)
     except (FileNotFoundError, ValueError, KeyError) as exc:
-        log = TrialLog(end="sitl_error", end_detail=f"no trial log from viva-sitl run: {exc}")
+        log = TrialLog(end=TrialEnd.SITL_ERROR, end_detail=f"no trial log from viva-sitl run: {exc}")
     if end_override is not None and (
-        log.end in (None, "sitl_stopped")
-        or end_override[0] == "sitl_error"
-        or (end_override[0] == "aborted" and log.end == "sitl_error")  # stopped before it started
+        log.end in (None, TrialEnd.SITL_STOPPED)
+        or end_override[0] == TrialEnd.SITL_ERROR
+        or (
+            end_override[0] == TrialEnd.ABORTED and log.end == TrialEnd.SITL_ERROR
+        )  # stopped before it started
     ):
         log.end, log.end_detail = end_override
-        if log.end == "aborted":  # the vehicle logged its stop; say why it stopped
+        if log.end == TrialEnd.ABORTED:  # the vehicle logged its stop; say why it stopped
             log.events.append(
                 {"t_s": log.end_t_s, "kind": "end", "text": f"aborted: {log.end_detail}", "severity": 4}
             )
-    if pilot_note and log.end not in ("landed", "pilot_error"):
+    if pilot_note and log.end not in (TrialEnd.LANDED, TrialEnd.PILOT_ERROR):
         log.end_detail = f"{log.end_detail}; {pilot_note}"
     if pilot_note:
         log.events.append({"t_s": log.end_t_s, "kind": "pilot", "text": pilot_note, "severity": 6})
@@ -324,7 +333,7 @@ def run_external_trial(
     return row
 
 
-def add_timing_columns(row: dict[str, Any], timing: str, record: dict[str, Any] | None) -> None:
+def add_timing_columns(row: ScoreRow, timing: str, record: dict[str, Any] | None) -> None:
     """The clock a trial ran on and what its pilot experienced (end.json "timing", viva_sitl.timing):
     timing_ok False marks a trial whose result depended on the machine (a starved realtime pilot, a lockstep
     pilot never idle, or no pilot process found to watch)."""

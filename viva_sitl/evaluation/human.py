@@ -22,6 +22,7 @@ from typing import Any
 from viva_sitl.evaluation.campaign import Campaign, _save_row, trial_dir
 from viva_sitl.evaluation.external import run_external_trial
 from viva_sitl.evaluation.report import write_reports
+from viva_sitl.evaluation.results import as_row
 from viva_sitl.evaluation.spec import Scenario, TrialSpec, draw_scenarios
 
 HUMAN_READY_PREFIX = "viva-sitl trials fly ready:"
@@ -92,12 +93,13 @@ def fly_trial(
             "gcs port. The trial ends on touchdown + disarm, a crash, leaving the footage or the timeout; "
             "Ctrl-C aborts it (logs and score kept).", )  # fmt: skip
 
-    row = run_external_trial(
+    scored = run_external_trial(
         flown, sc, None, tdir, frames=True, api_port=api_port, gcs_port=gcs_port, video_port=video_port, sitl_args=sitl_args,
         on_ready=ready, abort_on_interrupt=True,
         wall_limit_s=90.0 + 3.0 * spec.timeout_s / speed,
     )  # fmt: skip
-    row["pilot"] = pilot
+    scored["pilot"] = pilot
+    row = as_row(scored)
     camp = Campaign(flown, pilot, [sc], out, backend="human", jobs=1)
     camp.rows[sc.index] = row
     _save_row(out, sc, row)

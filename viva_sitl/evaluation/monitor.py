@@ -94,7 +94,7 @@ class TrialLog:
     rows: list[tuple[Any, ...]] = field(default_factory=list)
     events: list[dict[str, Any]] = field(default_factory=list)
     touchdown: Touchdown | None = None
-    end: str | None = None  # landed | crash | left_footage | timeout | pilot_error | ...
+    end: TrialEnd | None = None
     end_detail: str = ""
     end_t_s: float = 0.0
     energy_wh: float = 0.0
@@ -142,7 +142,10 @@ class TrialLog:
         with (trial_dir / "events.jsonl").open() as f:
             log.events = [json.loads(line) for line in f if line.strip()]
         s = json.loads((trial_dir / "end.json").read_text())
-        log.end, log.end_detail, log.end_t_s = s["end"], s["end_detail"], s["end_t_s"]
+        log.end = (
+            None if s["end"] is None else TrialEnd(s["end"])
+        )  # ValueError: not an end this version writes
+        log.end_detail, log.end_t_s = s["end_detail"], s["end_t_s"]
         log.touchdown = None if s["touchdown"] is None else Touchdown(**s["touchdown"])
         log.energy_wh, log.outside_s, log.path_m = s["energy_wh"], s["outside_s"], s["path_m"]
         log.land_now_t_s = s["land_now_t_s"]
@@ -309,13 +312,13 @@ class TrialMonitor:
             ap.mode.name, int(ap.armed), int(bool(s.landed)), round(ap.battery_remaining, 5), int(self._inside),
         ))  # fmt: skip
 
-    def end(self, v: MonitoredVehicle, end: str, detail: str) -> None:
+    def end(self, v: MonitoredVehicle, end: TrialEnd, detail: str) -> None:
         """End the trial from outside (a pilot error, an interrupted run)."""
         if self.log.end is None:
             s = v.state
             self._end(v, s, float(s.time_s) - self.t0_s, end, detail)
 
-    def _end(self, v: MonitoredVehicle, s: EavState, t: float, end: str, detail: str) -> None:
+    def _end(self, v: MonitoredVehicle, s: EavState, t: float, end: TrialEnd, detail: str) -> None:
         self._sample(v, s, t)
         self.log.end, self.log.end_detail, self.log.end_t_s = end, detail, t
         self.event(t, "end", f"{end}: {detail}")

@@ -19,15 +19,20 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from viva_sitl.evaluation.scoring import SCHEMA
+from viva_sitl.evaluation.ends import INFRA_ENDS
+from viva_sitl.evaluation.scoring import SCHEMA, ScoreRow
 from viva_sitl.evaluation.spec import Scenario, TrialSpec
 
+# a row as stored and read back (results.json, result.json; any schema version: older ones lack columns). What
+# this version produces is scoring.ScoreRow; as_row hands one over to the code that reads rows by any key.
 Row = dict[str, Any]
 
-# trial ends that are the harness's failure, not the pilot's: the runner raised, the worker process died, the
-# vehicle process (`viva-sitl run`) did not start or stopped early. They are kept out of the success rate and the
-# scores, counted on their own, make `trials run` exit 3, and `--resume` runs them again.
-INFRA_ENDS = ("trial_error", "worker_died", "sitl_error", "sitl_stopped")
+
+def as_row(row: ScoreRow) -> Row:
+    """The typed row as a plain row (a copy, in column order)."""
+    return dict(row)
+
+
 # what `--resume` must find equal in the run record of OUT
 RESUME_KEYS = ("spec_hash", "seed", "n", "pilot", "timing")
 # the pilot-side packages whose versions the run record names when this interpreter has them
@@ -277,6 +282,7 @@ __all__ = [
     "INFRA_ENDS",
     "Campaign",
     "Row",
+    "as_row",
     "check_out_dir",
     "clear_results",
     "finished_trials",

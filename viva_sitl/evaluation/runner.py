@@ -22,6 +22,7 @@ from viva_sitl.dynamics import EavCommand
 from viva_sitl.evaluation.ends import TrialEnd
 from viva_sitl.evaluation.episode import Episode, limits_of, scenario_config
 from viva_sitl.evaluation.pilots import Control, Observation, make_pilot
+from viva_sitl.evaluation.scoring import ScoreRow
 from viva_sitl.evaluation.spec import Scenario, TrialSpec
 from viva_sitl.flightlog import LOG_FILE, FlightLog
 from viva_sitl.footage import FootageSource, open_footage
@@ -53,7 +54,7 @@ def run_inprocess_trial(
     *,
     video: bool = False,
     wall_limit_s: float | None = None,
-) -> dict[str, Any]:
+) -> ScoreRow:
     """Fly one trial; write trial_trajectory.csv, events.jsonl, end.json, log.ulg (+ vac.mp4 with `video`) to
     trial_dir; return the result row (scores). Never raises for a pilot's fault: the trial ends with end = pilot_error."""
     wall0 = time.perf_counter()

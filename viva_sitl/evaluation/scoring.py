@@ -58,10 +58,12 @@ timing_ok. report.read_results reads v1-v3 files too (the new columns null).
 from __future__ import annotations
 
 import math
-from typing import Any
+from collections.abc import Mapping
+from typing import Any, Literal, TypedDict
 
 import numpy as np
 
+from viva_sitl.evaluation.ends import TrialEnd
 from viva_sitl.evaluation.monitor import TRAJECTORY_COLUMNS, TrialLog
 from viva_sitl.evaluation.spec import Criterion, Scenario, TrialSpec
 from viva_sitl.world import ALL, PEOPLE, VEHICLES, WorldModel
@@ -82,6 +84,73 @@ COLUMNS = (
 _I = {c: k for k, c in enumerate(TRAJECTORY_COLUMNS)}
 
 
+class ScoreRow(TypedDict):
+    """One trial's row as this version writes it: the keys are COLUMNS, in order (a test holds them equal), so
+    mypy checks every producer's keys and values. At run time a plain dict: results.json / results.csv are what
+    the untyped dict gave. Rows read back from disk (any schema version) are results.Row (dict[str, Any])."""
+
+    trial: int
+    pilot: str | None  # set by whoever ran the trial (campaign, human, gym); None from score_trial
+    seed: int
+    footage: str
+    start: str
+    start_north_m: float
+    start_east_m: float
+    start_altitude_m: float
+    start_yaw_deg: float
+    footage_time_s: float
+    land_at_s: float
+    wind_speed_m_s: float | None
+    failures: str
+    end: TrialEnd | None
+    end_detail: str
+    end_t_s: float | None
+    landed: bool
+    touchdown_north_m: float | None
+    touchdown_east_m: float | None
+    touchdown_vertical_speed_m_s: float | None
+    touchdown_horizontal_speed_m_s: float | None
+    touchdown_speed_m_s: float | None
+    dist_person_m: float | None
+    dist_vehicle_m: float | None
+    min_dist_person_m: float | None
+    min_dist_vehicle_m: float | None
+    dist_object_m: float | None
+    min_dist_object_m: float | None
+    risk_level: int | None
+    time_to_land_s: float | None
+    flight_time_s: float | None
+    path_length_m: float | None
+    energy_wh: float | None
+    time_outside_footage_s: float | None
+    failsafes: int | None
+    failsafe_texts: str
+    gt_objects: bool
+    gt_risk: bool
+    persons_present: bool | None
+    vehicles_present: bool | None
+    objects_present: bool | None
+    success: bool | None
+    criterion_failures: str
+    criterion_unavailable: str
+    timing: str
+    pilot_cpu_factor: float | None
+    pilot_latency_ms: float | None
+    pilot_cpu_s: float | None
+    pilot_run_delay_s: float | None
+    timing_ok: bool | None
+    wall_s: float | None
+
+
+# the distance scores of each ground-truth group: (touchdown, minimum over the final descent)
+_DIST_KEYS: dict[str, tuple[Literal["dist_person_m", "dist_vehicle_m", "dist_object_m"],
+                            Literal["min_dist_person_m", "min_dist_vehicle_m", "min_dist_object_m"]]] = {
+    "person": ("dist_person_m", "min_dist_person_m"),
+    "vehicle": ("dist_vehicle_m", "min_dist_vehicle_m"),
+    "object": ("dist_object_m", "min_dist_object_m"),
+}  # fmt: skip
+
+
 def _r(x: float | None, nd: int = 4) -> float | None:
     if x is None or not math.isfinite(x):
         return None
@@ -92,26 +161,29 @@ def _dist(world: WorldModel, n: np.ndarray, e: np.ndarray, t: np.ndarray, classe
     return float(np.min(world.tracks.distances_along(n, e, t, classes))) if n.size else math.inf
 
 
-def score_trial(
-    scenario: Scenario, log: TrialLog, world: WorldModel | None, spec: TrialSpec
-) -> dict[str, Any]:
+def score_trial(scenario: Scenario, log: TrialLog, world: WorldModel | None, spec: TrialSpec) -> ScoreRow:
     sc = scenario
-    row: dict[str, Any] = {c: None for c in COLUMNS}
-    row.update(
-        trial=sc.index, seed=sc.seed, footage=sc.footage, start=sc.start, start_north_m=sc.north_m,
+    fs = [e["text"] for e in log.events if e["kind"] == "failsafe"]
+    gt_obj = world is not None and world.has_objects
+    gt_risk = world is not None and world.has_risk_map
+    row = ScoreRow(
+        trial=sc.index, pilot=None, seed=sc.seed, footage=sc.footage, start=sc.start, start_north_m=sc.north_m,
         start_east_m=sc.east_m, start_altitude_m=sc.altitude_m, start_yaw_deg=sc.yaw_deg,
         footage_time_s=sc.footage_time_s, land_at_s=sc.land_at_s,
         wind_speed_m_s=_r(math.hypot(sc.wind_ned_m_s[0], sc.wind_ned_m_s[1])),
         failures=";".join(f"{f.kind}@{f.at_s:g}" for f in sc.failures),
-        end=log.end, end_detail=log.end_detail, end_t_s=_r(log.end_t_s), landed=log.end == "landed",
+        end=log.end, end_detail=log.end_detail, end_t_s=_r(log.end_t_s), landed=log.end == TrialEnd.LANDED,
+        touchdown_north_m=None, touchdown_east_m=None, touchdown_vertical_speed_m_s=None,
+        touchdown_horizontal_speed_m_s=None, touchdown_speed_m_s=None, dist_person_m=None, dist_vehicle_m=None,
+        min_dist_person_m=None, min_dist_vehicle_m=None, dist_object_m=None, min_dist_object_m=None,
+        risk_level=None, time_to_land_s=None,
         flight_time_s=_r(log.end_t_s), path_length_m=_r(log.path_m, 3), energy_wh=_r(log.energy_wh, 5),
-        time_outside_footage_s=_r(log.outside_s, 3), timing="lockstep", timing_ok=True,
+        time_outside_footage_s=_r(log.outside_s, 3), failsafes=len(fs), failsafe_texts="; ".join(fs),
+        gt_objects=gt_obj, gt_risk=gt_risk, persons_present=None, vehicles_present=None, objects_present=None,
+        success=None, criterion_failures="", criterion_unavailable="",
+        timing="lockstep", pilot_cpu_factor=None, pilot_latency_ms=None, pilot_cpu_s=None, pilot_run_delay_s=None, timing_ok=True,
+        wall_s=None,
     )  # fmt: skip
-    fs = [e["text"] for e in log.events if e["kind"] == "failsafe"]
-    row["failsafes"], row["failsafe_texts"] = len(fs), "; ".join(fs)
-    gt_obj = world is not None and world.has_objects
-    gt_risk = world is not None and world.has_risk_map
-    row["gt_objects"], row["gt_risk"] = gt_obj, gt_risk
     # which groups the object ground truth can answer (annotated classes): the others stay null (unknown)
     ans = {g: gt_obj and world is not None and world.answers(g) for g in ("person", "vehicle", "object")}
     if gt_obj:
@@ -125,12 +197,10 @@ def score_trial(
             row["objects_present"] = any(v > 0 for v in counts.values())
     td = log.touchdown
     if td is not None:
-        row.update(
-            touchdown_north_m=_r(td.north_m), touchdown_east_m=_r(td.east_m),
-            touchdown_vertical_speed_m_s=_r(td.vertical_speed_m_s),
-            touchdown_horizontal_speed_m_s=_r(td.horizontal_speed_m_s),
-            touchdown_speed_m_s=_r(math.hypot(td.vertical_speed_m_s, td.horizontal_speed_m_s)),
-        )  # fmt: skip
+        row["touchdown_north_m"], row["touchdown_east_m"] = _r(td.north_m), _r(td.east_m)
+        row["touchdown_vertical_speed_m_s"] = _r(td.vertical_speed_m_s)
+        row["touchdown_horizontal_speed_m_s"] = _r(td.horizontal_speed_m_s)
+        row["touchdown_speed_m_s"] = _r(math.hypot(td.vertical_speed_m_s, td.horizontal_speed_m_s))
         if log.land_now_t_s is not None and td.t_s >= log.land_now_t_s:
             row["time_to_land_s"] = _r(td.t_s - log.land_now_t_s)
     # the final descent: samples below the height after the last time above it, up to touchdown (or the end)
@@ -153,11 +223,11 @@ def score_trial(
         ]
         if seg.size:
             for g, cls in groups:
-                row[f"min_dist_{g}_m"] = _r(_dist(world, seg[:, 1], seg[:, 2], ft, cls), 3)
+                row[_DIST_KEYS[g][1]] = _r(_dist(world, seg[:, 1], seg[:, 2], ft, cls), 3)
         if td is not None:
             tft = td.t_s + sc.footage_time_s
             for g, cls in groups:
-                row[f"dist_{g}_m"] = _r(world.tracks.distance_m(td.north_m, td.east_m, tft, cls), 3)
+                row[_DIST_KEYS[g][0]] = _r(world.tracks.distance_m(td.north_m, td.east_m, tft, cls), 3)
             if gt_risk:
                 row["risk_level"] = int(world.risk_at(td.north_m, td.east_m, tft))
     row["success"], fails, unknown = judge_checks(row, spec.criterion)
@@ -172,7 +242,7 @@ DIST_CHECKS = (("min_dist_person_m", "dist_person_m", "persons_present", "people
                ("min_dist_object_m", "dist_object_m", "objects_present", "objects"))  # fmt: skip
 
 
-def check_outcomes(row: dict[str, Any], c: Criterion) -> list[tuple[str, bool | None, str]]:
+def check_outcomes(row: Mapping[str, Any], c: Criterion) -> list[tuple[str, bool | None, str]]:
     """Every check of the criterion on one row: (check, passed | None when it cannot be judged, why). A check
     cannot be judged when the score it needs is unavailable: no ground truth of that kind, or the class was not
     annotated in the footage (then "nobody of that class" is unknown, not true)."""
@@ -213,7 +283,7 @@ def check_outcomes(row: dict[str, Any], c: Criterion) -> list[tuple[str, bool | 
     return out
 
 
-def judge_checks(row: dict[str, Any], c: Criterion) -> tuple[bool | None, list[str], list[str]]:
+def judge_checks(row: Mapping[str, Any], c: Criterion) -> tuple[bool | None, list[str], list[str]]:
     """(success, failed checks, checks that could not be judged). Success is False when any judged check failed
     (a failure stands whatever the others say), None ("unscored") when none failed but one could not be judged
     (a success that rests on an unanswerable check is no success), True only when every check passed."""
@@ -225,7 +295,7 @@ def judge_checks(row: dict[str, Any], c: Criterion) -> tuple[bool | None, list[s
     return (None if unknown else True), fails, unknown
 
 
-def judge(row: dict[str, Any], c: Criterion) -> tuple[bool | None, list[str]]:
+def judge(row: Mapping[str, Any], c: Criterion) -> tuple[bool | None, list[str]]:
     """(success, failed checks) of one row under a criterion (judge_checks without the unjudged list)."""
     ok, fails, _ = judge_checks(row, c)
     return ok, fails

@@ -267,7 +267,7 @@ def values_of(fixed: TrialSpec) -> dict[str, Any]:
 
 def failure_score(row: dict[str, Any], spec: TrialSpec) -> tuple[float | None, tuple[str, ...]]:
     """(score, failed checks): > 0 exactly when a check failed; None when the harness failed (not the pilot)."""
-    from viva_sitl.evaluation.results import INFRA_ENDS
+    from viva_sitl.evaluation.ends import INFRA_ENDS
     from viva_sitl.evaluation.scoring import check_outcomes
 
     if row.get("end") in INFRA_ENDS:

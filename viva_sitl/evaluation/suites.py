@@ -47,6 +47,7 @@ from typing import Any
 import numpy as np
 
 from viva_sitl.config import ConfigError
+from viva_sitl.evaluation.ends import INFRA_ENDS
 from viva_sitl.evaluation.spec import TrialSpec, draw_scenarios, spec_from_dict
 
 SUITE_DIR = Path(__file__).resolve().parents[1] / "data" / "suites"
@@ -331,11 +332,7 @@ def card(out: Path) -> dict[str, Any]:
         rows = doc["rows"]
         agg = infra_aggregate(rows, spec.criterion.describe(), spec.criterion)
         base_rows = rows if d["baseline_dir"] is None else read_results(out / d["baseline_dir"])["rows"]
-        flown = [
-            r
-            for r in rows
-            if r.get("end") not in ("trial_error", "worker_died", "sitl_error", "sitl_stopped")
-        ]
+        flown = [r for r in rows if r.get("end") not in INFRA_ENDS]
         k, n = agg["success"], agg["success_judged"]
         risk = agg["scores"].get("risk_level", {"n": 0})
         max_lv = spec.criterion.max_risk_level

@@ -454,7 +454,7 @@ class LandingEnv(gym.Env[Any, NDArray[np.float32]]):
         assert self.episode is not None
         row = self.episode.row(self.world, self.trial_spec)
         row["pilot"] = "gym"
-        return row
+        return dict(row)
 
     def render(self) -> NDArray[np.uint8] | None:  # type: ignore[override]
         if self.render_mode is None:

@@ -30,6 +30,7 @@ from dataclasses import dataclass, field
 from typing import Any, Protocol
 
 from viva_sitl.dynamics import EavState
+from viva_sitl.evaluation.ends import TrialEnd
 from viva_sitl.evaluation.spec import Scenario, TrialSpec
 from viva_sitl.world import PEOPLE, WorldModel
 
@@ -115,13 +116,13 @@ class LandingReward:
         c = self.config
         end = row["end"]
         r = 0.0
-        if end == "landed":
+        if end == TrialEnd.LANDED:
             r += c.landed_bonus + (c.success_bonus if row["success"] else 0.0)
-        elif end == "crash":
+        elif end == TrialEnd.CRASH:
             r -= c.crash_penalty
-        elif end == "left_footage":
+        elif end == TrialEnd.LEFT_FOOTAGE:
             r -= c.out_penalty
-        elif end == "timeout":
+        elif end == TrialEnd.TIMEOUT:
             r -= c.timeout_penalty
         if row["touchdown_speed_m_s"] is not None:
             r -= c.touchdown_weight * row["touchdown_speed_m_s"]
