@@ -41,7 +41,23 @@ What each supported failure does (PX4 SITL's consequence; where this vehicle sim
   output, the frame socket and the in-process pilots' frames. OFF: no frames are delivered (callers that must get a
   frame get black); STUCK: the last good image is repeated (frozen; the frame metadata keeps telling the true pose);
   WRONG: black frames. OK: live frames again.
-Every other pair is UNSUPPORTED (PX4 also implements STUCK/WRONG/GARBAGE for some sensors; not here).
+- SENSOR_ACCEL / SENSOR_GYRO / SENSOR_MAG / SENSOR_BARO, STUCK (PX4 SITL: the simulated sensor repeats its last
+  sample): HIGHRES_IMU repeats the last reading of that sensor; PX4's sensor voter flags a sensor whose values stop
+  changing as stale: "<Name> #0 fail: STALE!", SYS_STATUS health bit cleared, arming refused. In the air the
+  consequence is that of OFF (accel/gyro: no usable attitude estimate, flight termination, simplified: immediate;
+  mag/baro: EKF2 goes on with GNSS yaw / GNSS height, no mode change).
+- SENSOR_ACCEL / SENSOR_GYRO / SENSOR_MAG / SENSOR_BARO, OFF: HIGHRES_IMU stops carrying that sensor (its
+  fields_updated bits cleared, values 0), as PX4 stops publishing the sensor.
+- SENSOR_GPS, STUCK (PX4 main: the last sensor_gps message is re-published, timestamp included): GPS_RAW_INT repeats
+  the last fix (3D fix, same position, speed and time_usec). SENSOR_GPS, WRONG (PX4 main: latitude and longitude
+  +1 deg, altitude +100 m, ground speed -1 m/s, velocity north +5 / east -8 / down +2 m/s): GPS_RAW_INT reports
+  that offset fix. For the estimate both act as OFF: a stuck fix brings EKF2 no new sample, a wrong one fails every
+  innovation check, so the GPS health bit clears and the global position is lost after EKF2_NOAID_TOUT with
+  the same failsafe. Simplified: PX4's EKF2 may later reset its position onto the wrong fix; here it stays lost.
+Every other pair is UNSUPPORTED, as in PX4 SITL: GARBAGE, SLOW, DELAYED and INTERMITTENT for every unit (no PX4
+simulation module handles them), WRONG for accel/gyro/mag/baro, and the other units' types not listed above
+(e.g. motor STUCK/WRONG, which PX4 maps to ESC telemetry this vehicle does not send). Where PX4 SITL sets several
+flags for one unit (GPS STUCK then WRONG), the last injected type wins here.
 """
 
 from __future__ import annotations
@@ -107,6 +123,20 @@ SUPPORTED: frozenset[tuple[FailureUnit, FailureType]] = frozenset(
         for t in _OK_OFF
     }  # fmt: skip
     | {(FailureUnit.SYSTEM_BATTERY, FailureType.WRONG)}
+    # PX4 SITL's simulated sensors also honour STUCK (the last sample repeated) for the IMU, mag and baro, and
+    # STUCK / WRONG for the GPS (PX4 main's simulation/failure_injection); nothing honours GARBAGE, SLOW, DELAYED
+    # or INTERMITTENT
+    | {
+        (u, FailureType.STUCK)
+        for u in (
+            FailureUnit.SENSOR_GYRO,
+            FailureUnit.SENSOR_ACCEL,
+            FailureUnit.SENSOR_MAG,
+            FailureUnit.SENSOR_BARO,
+            FailureUnit.SENSOR_GPS,
+        )
+    }
+    | {(FailureUnit.SENSOR_GPS, FailureType.WRONG)}
     | {(FailureUnit.SENSOR_CAMERA, t) for t in (*_OK_OFF, FailureType.STUCK, FailureType.WRONG)}
 )
 
