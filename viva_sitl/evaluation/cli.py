@@ -53,6 +53,11 @@ def build_parser() -> argparse.ArgumentParser:
     )
     r.add_argument("--video", action="store_true", help="also record each trial's VAC video (vac.mp4)")
     r.add_argument(
+        "--no-ulog", action="store_true",
+        help="in-process pilots: write no per-trial PX4 ULog (log.ulg), as the spec's trials.ulog = false; saves "
+        "+26-39 %% wall per trial, the results do not change",
+    )  # fmt: skip
+    r.add_argument(
         "--frames", action="store_true",
         help="external pilots: render the VAC and serve the frame-and-pose socket ({frame_socket}), as the "
         "spec's trials.frames = true; the scenarios do not change",
@@ -275,6 +280,8 @@ def _run(args: argparse.Namespace) -> int:
         spec = dataclasses.replace(spec, timing=args.timing)
     if args.pilot_cpu_factor is not None:
         spec = dataclasses.replace(spec, pilot_cpu_factor=args.pilot_cpu_factor)
+    if args.no_ulog:
+        spec = dataclasses.replace(spec, ulog=False)
     pilot = args.pilot or spec.pilot
     check_external_pilot(pilot)
     safe = "".join(ch if ch.isalnum() or ch in "-_" else "_" for ch in pilot.split("/")[-1])[:40]
