@@ -19,7 +19,9 @@ What each supported failure does (PX4 SITL's consequence; where this vehicle sim
   put into Descend by this failsafe returns to the mode it flew (PX4 clears a mode-fallback failsafe when its
   condition clears). Simplified: Offboard keeps flying its setpoints on the true state (PX4 would also fall back).
 - SENSOR_BARO / SENSOR_MAG, OFF: SYS_STATUS health bit cleared, "Baro #0 fail: TIMEOUT!" / "Mag #0 fail: TIMEOUT!",
-  arming refused. Simplified: in the air nothing else changes (PX4's EKF2 falls back to GNSS height and GNSS heading).
+  arming refused, and HIGHRES_IMU no longer carries the sensor (below). In the air, as PX4: no mode change and no
+  further message (EKF2 keeps its height from GNSS, PX4's default height reference, and its yaw from the gyro and,
+  when moving, GNSS; neither triggers a failsafe). Baro and GPS both lost: the GPS failsafe (Descend) covers it.
 - SENSOR_ACCEL / SENSOR_GYRO, OFF: health bit cleared, "Accel #0 fail: TIMEOUT!" / "Gyro #0 fail: TIMEOUT!",
   arming refused; in the air there is no attitude estimate, no mode can run, and PX4's fallback chain ends in flight
   termination: the motors stop. Simplified: immediate, where PX4 first sees the sensor time out.
@@ -58,6 +60,18 @@ Every other pair is UNSUPPORTED, as in PX4 SITL: GARBAGE, SLOW, DELAYED and INTE
 simulation module handles them), WRONG for accel/gyro/mag/baro, and the other units' types not listed above
 (e.g. motor STUCK/WRONG, which PX4 maps to ESC telemetry this vehicle does not send). Where PX4 SITL sets several
 flags for one unit (GPS STUCK then WRONG), the last injected type wins here.
+
+Where the supported pairs come from (PX4-Autopilot's source, read for its facts):
+- src/modules/simulation/simulator_mavlink/SimulatorMavlink.cpp, check_failure_injections() (releases up to v1.16,
+  Gazebo Classic): GPS OFF/OK; accel, gyro, mag OFF/STUCK/OK; baro OFF/STUCK/OK; airspeed OFF/WRONG; VIO OFF; any
+  other type of these units is acknowledged UNSUPPORTED.
+- src/modules/simulation/failure_injection/failureInjection.cpp (main, used by sensor_sim_manager for gz/SIH): the
+  same plus GPS STUCK (the previous sensor_gps re-published), WRONG (+1 deg, +100 m, velocity offsets) and DRIFT
+  (PX4's own type 8, not in MAVLink's FAILURE_TYPE: UNSUPPORTED here), a GPS_ALT unit (not in MAVLink), distance
+  sensor and AGP; SensorSimManager.cpp repeats the last baro/mag/IMU sample while STUCK.
+- src/modules/commander/failure_detector/FailureInjector.cpp (main): motor OFF/OK; STUCK / WRONG only block or
+  falsify ESC telemetry (ESC_STATUS), which this vehicle does not send: UNSUPPORTED here.
+- PX4's sensor voter (DataValidator) calls a sensor whose value stops changing STALE, one without data TIMEOUT.
 """
 
 from __future__ import annotations
