@@ -19,7 +19,7 @@ What each supported failure does (PX4 SITL's consequence; where this vehicle sim
   put into Descend by this failsafe returns to the mode it flew (PX4 clears a mode-fallback failsafe when its
   condition clears). Simplified: Offboard keeps flying its setpoints on the true state (PX4 would also fall back).
 - SENSOR_BARO / SENSOR_MAG, OFF: SYS_STATUS health bit cleared, "Baro #0 fail: TIMEOUT!" / "Mag #0 fail: TIMEOUT!",
-  arming refused, and HIGHRES_IMU no longer carries the sensor (below). In the air, as PX4: no mode change and no
+  arming refused, and HIGHRES_IMU stops updating the sensor (below). In the air, as PX4: no mode change and no
   further message (EKF2 keeps its height from GNSS, PX4's default height reference, and its yaw from the gyro and,
   when moving, GNSS; neither triggers a failsafe). Baro and GPS both lost: the GPS failsafe (Descend) covers it.
 - SENSOR_ACCEL / SENSOR_GYRO, OFF: health bit cleared, "Accel #0 fail: TIMEOUT!" / "Gyro #0 fail: TIMEOUT!",
@@ -48,8 +48,9 @@ What each supported failure does (PX4 SITL's consequence; where this vehicle sim
   changing as stale: "<Name> #0 fail: STALE!", SYS_STATUS health bit cleared, arming refused. In the air the
   consequence is that of OFF (accel/gyro: no usable attitude estimate, flight termination, simplified: immediate;
   mag/baro: EKF2 goes on with GNSS yaw / GNSS height, no mode change).
-- SENSOR_ACCEL / SENSOR_GYRO / SENSOR_MAG / SENSOR_BARO, OFF: HIGHRES_IMU stops carrying that sensor (its
-  fields_updated bits cleared, values 0), as PX4 stops publishing the sensor.
+- SENSOR_ACCEL / SENSOR_GYRO / SENSOR_MAG / SENSOR_BARO, OFF: HIGHRES_IMU stops updating that sensor (its
+  fields_updated bits cleared, its fields keep the last reading), as PX4's HIGHRES_IMU stream does when the sensor
+  topic stops.
 - SENSOR_GPS, STUCK (PX4 main: the last sensor_gps message is re-published, timestamp included): GPS_RAW_INT repeats
   the last fix (3D fix, same position, speed and time_usec). SENSOR_GPS, WRONG (PX4 main: latitude and longitude
   +1 deg, altitude +100 m, ground speed -1 m/s, velocity north +5 / east -8 / down +2 m/s): GPS_RAW_INT reports
@@ -62,12 +63,12 @@ simulation module handles them), WRONG for accel/gyro/mag/baro, and the other un
 flags for one unit (GPS STUCK then WRONG), the last injected type wins here.
 
 Where the supported pairs come from (PX4-Autopilot's source, read for its facts):
-- src/modules/simulation/simulator_mavlink/SimulatorMavlink.cpp, check_failure_injections() (releases up to v1.16,
-  Gazebo Classic): GPS OFF/OK; accel, gyro, mag OFF/STUCK/OK; baro OFF/STUCK/OK; airspeed OFF/WRONG; VIO OFF; any
+- src/modules/simulation/simulator_mavlink/SimulatorMavlink.cpp, check_failure_injections() (Gazebo Classic SITL,
+  the versions before the 2025 failure_injection module): GPS OFF/OK; accel, gyro, mag OFF/STUCK/OK; baro OFF/STUCK/OK; airspeed OFF/WRONG; VIO OFF; any
   other type of these units is acknowledged UNSUPPORTED.
 - src/modules/simulation/failure_injection/failureInjection.cpp (main, used by sensor_sim_manager for gz/SIH): the
   same plus GPS STUCK (the previous sensor_gps re-published), WRONG (+1 deg, +100 m, velocity offsets) and DRIFT
-  (PX4's own type 8, not in MAVLink's FAILURE_TYPE: UNSUPPORTED here), a GPS_ALT unit (not in MAVLink), distance
+  (PX4's own FAILURE_TYPE_DRIFT, not in MAVLink's FAILURE_TYPE: unknown, so UNSUPPORTED here), a GPS_ALT unit (not in MAVLink), distance
   sensor and AGP; SensorSimManager.cpp repeats the last baro/mag/IMU sample while STUCK.
 - src/modules/commander/failure_detector/FailureInjector.cpp (main): motor OFF/OK; STUCK / WRONG only block or
   falsify ESC telemetry (ESC_STATUS), which this vehicle does not send: UNSUPPORTED here.

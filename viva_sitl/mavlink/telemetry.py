@@ -381,8 +381,8 @@ class TelemetryBuilder:
         fault_of = getattr(ap, "sensor_fault", None)
         for unit, bits in _IMU_FIELD_BITS.items():
             fault = fault_of(unit) if callable(fault_of) else None
-            if fault is FailureType.OFF:  # PX4 stops publishing the sensor: its fields are not updated
-                live[unit] = (0.0,) * len(live[unit])
+            if fault is FailureType.OFF:  # no new sample: PX4 sends the last one it had, its bits not set
+                live[unit] = self._imu_last.get(unit, (0.0,) * len(live[unit]))
                 updated &= ~bits
             elif fault is FailureType.STUCK:  # the last sample repeated
                 live[unit] = self._imu_last.setdefault(unit, live[unit])
