@@ -129,6 +129,9 @@ class Example:
     done: Check | None = None  # for runs_forever: condition to end it early
     px4: str = "passes"  # what PX4 SITL does (from its documented behaviour)
     kind: str = "flight"
+    # viva-sitl's config for this example (TOML text, passed as `run --config`): the airframe it needs, as PX4 SITL
+    # needs gz_x500_gimbal for gimbal.py
+    config_toml: str = ""
 
 
 EXAMPLES: list[Example] = [
@@ -230,7 +233,14 @@ EXAMPLES: list[Example] = [
     ),
     Example("highres_imu", "prints HIGHRES_IMU", (r"X Acceleration",), runs_forever=True, timeout_s=30),
     Example("camera", "camera mode, photo, video", (), kind="camera"),
-    Example("gimbal", "gimbal control", (), kind="camera"),
+    Example(
+        "gimbal",
+        "gimbal control",
+        ("Back to horizontal",),
+        kind="camera",
+        config_toml='[camera]\nmount = "gimbal"\n',
+        px4="passes with the gz_x500_gimbal airframe",
+    ),  # fmt: skip
     Example("calibration", "sensor calibrations", (), kind="info", px4="passes (SITL: simulated sensors)"),
     Example("send_status_message", "sends a STATUSTEXT from the companion", (), kind="info"),
     Example("shell", "MAVLink shell (nsh)", (), kind="info", runs_forever=True, timeout_s=20),
@@ -274,7 +284,13 @@ class Result:
 
 
 def run_one(
-    ex: Example, examples_dir: Path, python: str, workdir: Path, speed: float, keep_logs: Path | None
+    ex: Example,
+    examples_dir: Path,
+    python: str,
+    workdir: Path,
+    speed: float,
+    keep_logs: Path | None,
+    sitl_args: tuple[str, ...] = (),
 ) -> Result:
     script = examples_dir / f"{ex.name}.py"
     if not script.exists():
@@ -303,9 +319,18 @@ def run_one(
 
     gcs_port, api_local, gcs_local, video_port = free_udp_ports(4)
     ports = SitlPorts(api=api_port, gcs=gcs_port, api_local=api_local, gcs_local=gcs_local)
+    extra: tuple[str, ...] = sitl_args
+    if sitl_args:
+        notes.append(f"viva-sitl {' '.join(sitl_args)}")
+    if ex.config_toml:
+        cfg = run_dir / "viva-sitl.toml"
+        cfg.write_text(ex.config_toml)
+        extra += ("--config", str(cfg))
+        notes.append(f"viva-sitl --config: {ex.config_toml.strip()!r}")
     sitl = SitlProcess(
-        workdir=run_dir, ports=ports, speed=speed, video_port=video_port, frame_socket_port=free_tcp_port()
-    )
+        workdir=run_dir, ports=ports, speed=speed, video_port=video_port, frame_socket_port=free_tcp_port(),
+        extra_args=extra,
+    )  # fmt: skip
     observer = MavlinkPeer(gcs_port)
     observer.heartbeat = False  # passive: the ground-station port only listens
     t0 = time.monotonic()
@@ -391,6 +416,12 @@ def main() -> int:
     parser.add_argument("--speed", type=float, default=1.0)
     parser.add_argument("--out", type=Path, help="write the markdown table here (default: stdout only)")
     parser.add_argument("--logs", type=Path, help="keep each example's output and viva-sitl's log here")
+    parser.add_argument(
+        "--sitl-arg",
+        action="append",
+        default=[],
+        help="one more `viva-sitl run` argument for every example (repeatable; e.g. --sitl-arg=--no-video)",
+    )
     args = parser.parse_args()
     version = subprocess.run(
         [args.python, "-c", "import importlib.metadata as m; print(m.version('mavsdk'))"],
@@ -404,7 +435,9 @@ def main() -> int:
     rows: list[Result] = []
     with tempfile.TemporaryDirectory(prefix="viva-mavsdk-examples-") as tmp:
         for ex in selected:
-            res = run_one(ex, args.examples, args.python, Path(tmp), args.speed, args.logs)
+            res = run_one(
+                ex, args.examples, args.python, Path(tmp), args.speed, args.logs, tuple(args.sitl_arg)
+            )
             rows.append(res)
             print(f"{ex.name}: {res.result} ({res.wall_s:.0f} s) {res.notes}", flush=True)
     lines = [

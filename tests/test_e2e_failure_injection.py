@@ -180,3 +180,47 @@ def test_camera_failure_blacks_out_and_drops_frame_socket_frames(
         assert peer.command_long(INJECT, (CAMERA, OK, 0)).result == mavlink2.MAV_RESULT_ACCEPTED
         back, _ = next_frame(time.monotonic())
         assert back.any()
+
+
+def test_sensor_stuck_and_wrong_over_mavlink_and_unsupported_types(
+    sitl: SitlProcess, peer_factory: Callable[[int], MavlinkPeer]
+) -> None:
+    """The failure types PX4 SITL honours beyond OFF, over real MAVLink: GPS STUCK repeats the last GPS_RAW_INT (its
+    time_usec too), GPS WRONG offsets it by +1 deg; baro STUCK is stale (STATUSTEXT, SYS_STATUS baro health bit
+    cleared); GARBAGE / SLOW / DELAYED / INTERMITTENT answer UNSUPPORTED, as PX4's simulation modules do."""
+    stuck, garbage, wrong = 2, 3, 4  # FAILURE_TYPE_STUCK, _GARBAGE, _WRONG
+    baro, baro_bit = 3, mavlink2.MAV_SYS_STATUS_SENSOR_ABSOLUTE_PRESSURE
+    peer = peer_factory(sitl.ports.gcs)
+    peer.wait_autopilot()
+    peer.send(peer.mav.param_set_encode(1, 1, b"SYS_FAILURE_EN", 1, mavlink2.MAV_PARAM_TYPE_INT32))
+    peer.wait(
+        "PARAM_VALUE", lambda m: m.param_id == "SYS_FAILURE_EN" and m.param_value == 1, 5.0, since_s=0.0
+    )
+    for ftype in (garbage, 5, 6, 7):
+        assert peer.command_long(INJECT, (GPS, ftype, 0)).result == mavlink2.MAV_RESULT_UNSUPPORTED, ftype
+    assert peer.command_long(INJECT, (baro, wrong, 0)).result == mavlink2.MAV_RESULT_UNSUPPORTED
+
+    live = peer.wait("GPS_RAW_INT", lambda m: m.fix_type == 3, 10.0, since_s=time.monotonic())
+    t0 = time.monotonic()
+    assert peer.command_long(INJECT, (GPS, stuck, 0)).result == mavlink2.MAV_RESULT_ACCEPTED
+    peer.wait("STATUSTEXT", lambda m: m.text == "Injected: gps stuck, all instances", 5.0, since_s=t0)
+    first = peer.wait("GPS_RAW_INT", lambda m: True, 5.0, since_s=time.monotonic())
+    later = peer.wait("GPS_RAW_INT", lambda m: True, 5.0, since_s=time.monotonic() + 0.5)
+    assert first.time_usec >= live.time_usec and later.time_usec == first.time_usec  # the same fix, repeated
+    assert (later.lat, later.lon, later.fix_type) == (first.lat, first.lon, 3)
+    assert peer.command_long(INJECT, (GPS, wrong, 0)).result == mavlink2.MAV_RESULT_ACCEPTED
+    off = peer.wait("GPS_RAW_INT", lambda m: m.lat - live.lat > 0.99e7, 5.0, since_s=time.monotonic())
+    assert off.lon - live.lon > 0.99e7 and 99_000 < off.alt - live.alt < 101_000
+    t1 = time.monotonic()
+    assert peer.command_long(INJECT, (GPS, OK, 0)).result == mavlink2.MAV_RESULT_ACCEPTED
+    peer.wait(
+        "GPS_RAW_INT", lambda m: abs(m.lat - live.lat) < 1000, 5.0, since_s=t1, what="the true fix back"
+    )
+
+    t2 = time.monotonic()
+    assert peer.command_long(INJECT, (baro, stuck, 1)).result == mavlink2.MAV_RESULT_ACCEPTED
+    peer.wait("STATUSTEXT", lambda m: m.text == "Baro #0 fail: STALE!", 5.0, since_s=t2)
+    peer.wait("SYS_STATUS", lambda m: not m.onboard_control_sensors_health & baro_bit, 5.0, since_s=t2)
+    t3 = time.monotonic()
+    assert peer.command_long(INJECT, (baro, OK, 1)).result == mavlink2.MAV_RESULT_ACCEPTED
+    peer.wait("SYS_STATUS", lambda m: m.onboard_control_sensors_health & baro_bit, 5.0, since_s=t3)

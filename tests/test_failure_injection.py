@@ -61,7 +61,15 @@ def test_acknowledgements_as_px4() -> None:
             (77, 1, 0),  # no such unit
             (U.SENSOR_GPS, 9, 0),  # no such type
             (U.SENSOR_OPTICAL_FLOW, T.OFF, 0),  # no optical flow on this vehicle
-            (U.SENSOR_GPS, T.STUCK, 0),  # a type PX4 has, not implemented here
+            (
+                U.SENSOR_GPS,
+                T.GARBAGE,
+                0,
+            ),  # no PX4 simulation module handles GARBAGE, SLOW, DELAYED, INTERMITTENT
+            (U.SENSOR_ACCEL, T.SLOW, 0),
+            (U.SENSOR_MAG, T.DELAYED, 0),
+            (U.SENSOR_GYRO, T.INTERMITTENT, 0),
+            (U.SENSOR_BARO, T.WRONG, 0),  # PX4 SITL's baro honours OFF and STUCK only
             (U.SENSOR_CAMERA, T.GARBAGE, 0),
             (U.SYSTEM_MOTOR, T.OFF, 5),  # a quad has motors 1..4
             (U.SENSOR_BARO, T.OFF, 2),  # one baro: instance 1 (0 = all)
@@ -284,3 +292,127 @@ def test_ulog_failsafe_flags_record_the_lost_position(tmp_path: Path) -> None:
     flags = pyulog.ULog(str(tmp_path / "log.ulg")).get_dataset("failsafe_flags").data
     invalid = flags["global_position_invalid"]
     assert invalid[0] == 0 and invalid[-1] == 1 and flags["local_position_invalid"][-1] == 1
+
+
+class _Link:
+    """The vehicle as TelemetryBuilder reads it (what the app's VehicleLink gives the MAVLink endpoint)."""
+
+    def __init__(self, v: Vehicle) -> None:
+        self.v, self.boot_wall_time_s, self.camera = v, 0.0, None
+
+    autopilot = property(lambda self: self.v.autopilot)
+    state = property(lambda self: self.v.state)
+    time_s = property(lambda self: self.v.time_s)
+    geo = property(lambda self: self.v.geo)
+
+
+_IMU_FIELDS = {
+    U.SENSOR_ACCEL: ("xacc", "yacc", "zacc"),
+    U.SENSOR_GYRO: ("xgyro", "ygyro", "zgyro"),
+    U.SENSOR_MAG: ("xmag", "ymag", "zmag"),
+    U.SENSOR_BARO: ("abs_pressure", "pressure_alt", "temperature"),
+}
+
+
+@pytest.mark.parametrize(
+    ("unit", "name"),
+    [(U.SENSOR_ACCEL, "Accel"), (U.SENSOR_GYRO, "Gyro"), (U.SENSOR_MAG, "Mag"), (U.SENSOR_BARO, "Baro")],
+)
+def test_sensor_stuck_repeats_the_last_sample_goes_stale_and_ok_restores(
+    unit: FailureUnit, name: str
+) -> None:
+    """PX4 SITL's STUCK: the simulated sensor repeats its last sample; PX4's voter calls it stale."""
+    from viva_sitl.mavlink.telemetry import TelemetryBuilder
+
+    with air_vehicle(20.0) as v:
+        ap, tb = v.autopilot, TelemetryBuilder(_Link(v), 1)  # type: ignore[arg-type]
+        v.params.set("MPC_XY_VEL_MAX", 12.0)
+        run(v, 0.5)
+        assert ap.reposition(
+            v.time_s, 40.0, 30.0, -5.0, math.radians(120.0)
+        ).ok  # moving, turning, descending
+        run(v, 1.0)
+        fields = _IMU_FIELDS[unit]
+        assert ap.inject_failure(v.time_s, unit, T.STUCK).ok
+        texts = [(e.severity, e.text) for e in ap.pop_events()]
+        assert (Severity.EMERGENCY, f"{name} #0 fail: STALE!") in texts
+        assert (Severity.WARNING, f"Injected: {name.lower()} stuck, all instances") in texts
+        assert ap.failed_health_bits == HEALTH_BITS[unit]
+        first = tb.highres_imu()
+        frozen = [getattr(first, f) for f in fields]
+        run(v, 1.0)
+        later = tb.highres_imu()
+        assert [getattr(later, f) for f in fields] == frozen  # the same sample, repeated
+        assert later.fields_updated == 0x1FFF  # a stuck sensor still publishes
+        if unit in (U.SENSOR_ACCEL, U.SENSOR_GYRO):
+            assert not ap.armed  # no usable attitude estimate in the air: flight termination (as for OFF)
+        else:
+            assert ap.armed and ap.mode is FlightMode.AUTO_LOITER  # EKF2 goes on with GNSS height / yaw
+        assert ap.inject_failure(v.time_s, unit, T.OK).ok
+        run(v, 0.5)
+        live = tb.highres_imu()
+        assert [getattr(live, f) for f in fields] != frozen and not ap.failed_health_bits
+
+
+@pytest.mark.parametrize("unit", [U.SENSOR_BARO, U.SENSOR_MAG])
+def test_baro_or_mag_off_in_flight_keeps_flying_without_that_sensor(unit: FailureUnit) -> None:
+    """PX4's EKF2 falls back to GNSS height (baro) / keeps its yaw from the gyro and GNSS (mag): no mode change in
+    Hold; what shows is the sensor's TIMEOUT, its health bit and HIGHRES_IMU no longer carrying it."""
+    from viva_sitl.mavlink.telemetry import TelemetryBuilder
+
+    with air_vehicle(20.0) as v:
+        ap, tb = v.autopilot, TelemetryBuilder(_Link(v), 1)  # type: ignore[arg-type]
+        run(v, 0.5)
+        before = tb.highres_imu()
+        assert before.fields_updated == 0x1FFF
+        z0 = float(v.state.pos_ned_m[2])
+        assert ap.inject_failure(v.time_s, unit, T.OFF).ok
+        events = run(v, 3.0)
+        assert any("fail: TIMEOUT!" in text for _, text in events)
+        assert ap.armed and ap.mode is FlightMode.AUTO_LOITER and abs(float(v.state.pos_ned_m[2]) - z0) < 1.0
+        imu = tb.highres_imu()
+        bits = {U.SENSOR_BARO: 0x1E00, U.SENSOR_MAG: 0x1C0}[unit]
+        assert imu.fields_updated == 0x1FFF & ~bits
+        # no new sample: the last reading, its fields_updated bits cleared (PX4's HIGHRES_IMU stream)
+        assert [getattr(imu, f) for f in _IMU_FIELDS[unit]] == [getattr(before, f) for f in _IMU_FIELDS[unit]]
+        assert ap.inject_failure(v.time_s, unit, T.OK).ok
+        assert tb.highres_imu().fields_updated == 0x1FFF
+
+
+@pytest.mark.parametrize("ftype", [T.STUCK, T.WRONG])
+def test_gps_stuck_or_wrong_reports_that_fix_and_loses_the_position_as_off(ftype: FailureType) -> None:
+    """PX4 main: STUCK re-publishes the last fix, WRONG offsets it (+1 deg lat/lon, +100 m); EKF2 gets no usable
+    sample either way, so the global position is lost after EKF2_NOAID_TOUT and the Descend failsafe follows."""
+    from viva_sitl.mavlink.telemetry import TelemetryBuilder
+
+    with air_vehicle(20.0) as v:
+        ap, tb = v.autopilot, TelemetryBuilder(_Link(v), 1)  # type: ignore[arg-type]
+        run(v, 0.5)
+        assert ap.reposition(v.time_s, 30.0, 0.0, -20.0, None).ok
+        run(v, 1.0)
+        before = tb.gps_raw_int()
+        assert ap.inject_failure(v.time_s, U.SENSOR_GPS, ftype).ok
+        assert ap.gps_fix and ap.failed_health_bits & HEALTH_BITS[U.SENSOR_GPS]  # a fix, but not a usable one
+        run(v, 1.0)
+        gps = tb.gps_raw_int()
+        assert gps.fix_type == 3
+        s = v.state
+        true_lat = v.geo.ned_to_global(*(float(x) for x in s.pos_ned_m))[0]
+        if ftype is T.STUCK:
+            assert (gps.time_usec, gps.lat, gps.lon, gps.alt) == (
+                before.time_usec,
+                before.lat,
+                before.lon,
+                before.alt,
+            )
+        else:
+            assert gps.lat - before.lat > 0.99e7 and gps.lon - before.lon > 0.99e7
+            assert 99_000 < gps.alt - before.alt < 101_000
+            assert abs(gps.lat / 1e7 - true_lat - 1.0) < 1e-5
+        events = run(v, GPS_NOAID_TIMEOUT_S)
+        assert not ap.global_position_valid and ap.mode is FlightMode.AUTO_LAND
+        assert (Severity.WARNING, "Failsafe activated (no GPS): switching to Descend") in events
+        assert ap.inject_failure(v.time_s, U.SENSOR_GPS, T.OK).ok
+        run(v, 0.2)
+        assert ap.global_position_valid and ap.mode is FlightMode.AUTO_LOITER
+        assert tb.gps_raw_int().time_usec > before.time_usec

@@ -109,7 +109,7 @@ def test_bad_spec_file_from_cli_is_one_line(tmp_path: Path) -> None:
                        capture_output=True, text=True, timeout=120, cwd=REPO)  # fmt: skip
     assert r.returncode == 2
     assert r.stderr.strip().splitlines() == [f"viva-sitl trials: {p}.trials.colour: unknown key (known: name, n, "
-                                              "seed, timeout_s, pilot, speed, end_outside_s, crash_speed_m_s, log_hz, frames, timing, pilot_cpu_factor, pilot_latency_ms)"]  # fmt: skip
+                                              "seed, timeout_s, pilot, speed, end_outside_s, crash_speed_m_s, log_hz, frames, timing, pilot_cpu_factor, pilot_latency_ms, ulog)"]  # fmt: skip
 
 
 @pytest.mark.parametrize(

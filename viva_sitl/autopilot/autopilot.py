@@ -174,8 +174,14 @@ class Autopilot:
 
     @property
     def gps_fix(self) -> bool:
-        """The GPS receiver delivers a fix (False while an injected GPS failure is on: GPS_RAW_INT fix 0)."""
-        return not self.failures.is_active(FailureUnit.SENSOR_GPS)
+        """The GPS receiver delivers a fix (False while an injected GPS OFF is on: GPS_RAW_INT fix 0; a stuck or
+        wrong GPS still reports its fix, see sensor_fault)."""
+        return not self.failures.is_active(FailureUnit.SENSOR_GPS, FailureType.OFF)
+
+    def sensor_fault(self, unit: FailureUnit) -> FailureType | None:
+        """The injected failure type of a unit now (OFF, STUCK, WRONG, ...), None while it works: what telemetry
+        reads to freeze (STUCK), offset (GPS WRONG) or drop (OFF) that sensor's raw output."""
+        return self.failures.active.get(unit)
 
     @property
     def global_position_valid(self) -> bool:
@@ -390,10 +396,13 @@ class Autopilot:
         u, t, inst = parsed
         ctx = self.ctx
         ctx.event(Severity.WARNING, describe(u, t, inst))
-        if u in SENSOR_NAMES and t is FailureType.OFF:
-            ctx.event(Severity.EMERGENCY, f"{SENSOR_NAMES[u]} #0 fail: TIMEOUT!")  # PX4's sensor voter
+        if u in SENSOR_NAMES and t in (FailureType.OFF, FailureType.STUCK):
+            # PX4's sensor voter: no data is a timeout, a value that stops changing is stale
+            why = "TIMEOUT" if t is FailureType.OFF else "STALE"
+            ctx.event(Severity.EMERGENCY, f"{SENSOR_NAMES[u]} #0 fail: {why}!")
         if u is FailureUnit.SENSOR_GPS:
-            if t is FailureType.OFF and self._gps_lost_s is None:
+            # OFF, STUCK (no new sample) and WRONG (every sample rejected) all leave EKF2 without GPS aiding
+            if t is not FailureType.OK and self._gps_lost_s is None:
                 self._gps_lost_s = now_s if math.isfinite(now_s) else ctx.now_s
             elif t is FailureType.OK:
                 self._gps_lost_s = None
@@ -402,10 +411,17 @@ class Autopilot:
 
     def _update_sensor_faults(self) -> None:
         """The arming refusals the injected sensor failures cause (PX4's preflight checks)."""
-        faults = [f"{SENSOR_NAMES[u]} sensor 0 missing" for u in SENSOR_NAMES if self.failures.is_active(u)]
-        if self.failures.is_active(FailureUnit.SENSOR_GPS):
+        f = self.failures
+        faults = [
+            f"{SENSOR_NAMES[u]} sensor 0 {'stale' if f.is_active(u, FailureType.STUCK) else 'missing'}"
+            for u in SENSOR_NAMES
+            if f.is_active(u)
+        ]
+        if f.is_active(FailureUnit.SENSOR_GPS, FailureType.OFF):
             faults.append("GPS receiver missing")
-        if self.failures.is_active(FailureUnit.SYSTEM_MOTOR):
+        elif f.is_active(FailureUnit.SENSOR_GPS):
+            faults.append("GPS data invalid")
+        if f.is_active(FailureUnit.SYSTEM_MOTOR):
             faults.append("motor failure")
         self.ctx.sensor_faults = tuple(faults)
 

@@ -19,7 +19,9 @@ What each supported failure does (PX4 SITL's consequence; where this vehicle sim
   put into Descend by this failsafe returns to the mode it flew (PX4 clears a mode-fallback failsafe when its
   condition clears). Simplified: Offboard keeps flying its setpoints on the true state (PX4 would also fall back).
 - SENSOR_BARO / SENSOR_MAG, OFF: SYS_STATUS health bit cleared, "Baro #0 fail: TIMEOUT!" / "Mag #0 fail: TIMEOUT!",
-  arming refused. Simplified: in the air nothing else changes (PX4's EKF2 falls back to GNSS height and GNSS heading).
+  arming refused, and HIGHRES_IMU stops updating the sensor (below). In the air, as PX4: no mode change and no
+  further message (EKF2 keeps its height from GNSS, PX4's default height reference, and its yaw from the gyro and,
+  when moving, GNSS; neither triggers a failsafe). Baro and GPS both lost: the GPS failsafe (Descend) covers it.
 - SENSOR_ACCEL / SENSOR_GYRO, OFF: health bit cleared, "Accel #0 fail: TIMEOUT!" / "Gyro #0 fail: TIMEOUT!",
   arming refused; in the air there is no attitude estimate, no mode can run, and PX4's fallback chain ends in flight
   termination: the motors stop. Simplified: immediate, where PX4 first sees the sensor time out.
@@ -41,7 +43,36 @@ What each supported failure does (PX4 SITL's consequence; where this vehicle sim
   output, the frame socket and the in-process pilots' frames. OFF: no frames are delivered (callers that must get a
   frame get black); STUCK: the last good image is repeated (frozen; the frame metadata keeps telling the true pose);
   WRONG: black frames. OK: live frames again.
-Every other pair is UNSUPPORTED (PX4 also implements STUCK/WRONG/GARBAGE for some sensors; not here).
+- SENSOR_ACCEL / SENSOR_GYRO / SENSOR_MAG / SENSOR_BARO, STUCK (PX4 SITL: the simulated sensor repeats its last
+  sample): HIGHRES_IMU repeats the last reading of that sensor; PX4's sensor voter flags a sensor whose values stop
+  changing as stale: "<Name> #0 fail: STALE!", SYS_STATUS health bit cleared, arming refused. In the air the
+  consequence is that of OFF (accel/gyro: no usable attitude estimate, flight termination, simplified: immediate;
+  mag/baro: EKF2 goes on with GNSS yaw / GNSS height, no mode change).
+- SENSOR_ACCEL / SENSOR_GYRO / SENSOR_MAG / SENSOR_BARO, OFF: HIGHRES_IMU stops updating that sensor (its
+  fields_updated bits cleared, its fields keep the last reading), as PX4's HIGHRES_IMU stream does when the sensor
+  topic stops.
+- SENSOR_GPS, STUCK (PX4 main: the last sensor_gps message is re-published, timestamp included): GPS_RAW_INT repeats
+  the last fix (3D fix, same position, speed and time_usec). SENSOR_GPS, WRONG (PX4 main: latitude and longitude
+  +1 deg, altitude +100 m, ground speed -1 m/s, velocity north +5 / east -8 / down +2 m/s): GPS_RAW_INT reports
+  that offset fix. For the estimate both act as OFF: a stuck fix brings EKF2 no new sample, a wrong one fails every
+  innovation check, so the GPS health bit clears and the global position is lost after EKF2_NOAID_TOUT with
+  the same failsafe. Simplified: PX4's EKF2 may later reset its position onto the wrong fix; here it stays lost.
+Every other pair is UNSUPPORTED, as in PX4 SITL: GARBAGE, SLOW, DELAYED and INTERMITTENT for every unit (no PX4
+simulation module handles them), WRONG for accel/gyro/mag/baro, and the other units' types not listed above
+(e.g. motor STUCK/WRONG, which PX4 maps to ESC telemetry this vehicle does not send). Where PX4 SITL sets several
+flags for one unit (GPS STUCK then WRONG), the last injected type wins here.
+
+Where the supported pairs come from (PX4-Autopilot's source, read for its facts):
+- src/modules/simulation/simulator_mavlink/SimulatorMavlink.cpp, check_failure_injections() (Gazebo Classic SITL,
+  the versions before the 2025 failure_injection module): GPS OFF/OK; accel, gyro, mag OFF/STUCK/OK; baro OFF/STUCK/OK; airspeed OFF/WRONG; VIO OFF; any
+  other type of these units is acknowledged UNSUPPORTED.
+- src/modules/simulation/failure_injection/failureInjection.cpp (main, used by sensor_sim_manager for gz/SIH): the
+  same plus GPS STUCK (the previous sensor_gps re-published), WRONG (+1 deg, +100 m, velocity offsets) and DRIFT
+  (PX4's own FAILURE_TYPE_DRIFT, not in MAVLink's FAILURE_TYPE: unknown, so UNSUPPORTED here), a GPS_ALT unit (not in MAVLink), distance
+  sensor and AGP; SensorSimManager.cpp repeats the last baro/mag/IMU sample while STUCK.
+- src/modules/commander/failure_detector/FailureInjector.cpp (main): motor OFF/OK; STUCK / WRONG only block or
+  falsify ESC telemetry (ESC_STATUS), which this vehicle does not send: UNSUPPORTED here.
+- PX4's sensor voter (DataValidator) calls a sensor whose value stops changing STALE, one without data TIMEOUT.
 """
 
 from __future__ import annotations
@@ -107,6 +138,20 @@ SUPPORTED: frozenset[tuple[FailureUnit, FailureType]] = frozenset(
         for t in _OK_OFF
     }  # fmt: skip
     | {(FailureUnit.SYSTEM_BATTERY, FailureType.WRONG)}
+    # PX4 SITL's simulated sensors also honour STUCK (the last sample repeated) for the IMU, mag and baro, and
+    # STUCK / WRONG for the GPS (PX4 main's simulation/failure_injection); nothing honours GARBAGE, SLOW, DELAYED
+    # or INTERMITTENT
+    | {
+        (u, FailureType.STUCK)
+        for u in (
+            FailureUnit.SENSOR_GYRO,
+            FailureUnit.SENSOR_ACCEL,
+            FailureUnit.SENSOR_MAG,
+            FailureUnit.SENSOR_BARO,
+            FailureUnit.SENSOR_GPS,
+        )
+    }
+    | {(FailureUnit.SENSOR_GPS, FailureType.WRONG)}
     | {(FailureUnit.SENSOR_CAMERA, t) for t in (*_OK_OFF, FailureType.STUCK, FailureType.WRONG)}
 )
 

@@ -59,6 +59,11 @@ def build_parser() -> argparse.ArgumentParser:
     )
     r.add_argument("--video", action="store_true", help="also record each trial's VAC video (vac.mp4)")
     r.add_argument(
+        "--no-ulog", action="store_true",
+        help="in-process pilots: write no per-trial PX4 ULog (log.ulg), as the spec's trials.ulog = false; saves "
+        "+26-39 %% wall per trial, the results do not change",
+    )  # fmt: skip
+    r.add_argument(
         "--frames", action="store_true",
         help="external pilots: render the VAC and serve the frame-and-pose socket ({frame_socket}), as the "
         "spec's trials.frames = true; the scenarios do not change",
@@ -283,6 +288,8 @@ def _run(args: argparse.Namespace) -> int:
         spec = dataclasses.replace(spec, pilot_cpu_factor=args.pilot_cpu_factor)
     if args.pilot_latency_ms is not None:
         spec = dataclasses.replace(spec, pilot_latency_ms=args.pilot_latency_ms)
+    if args.no_ulog:
+        spec = dataclasses.replace(spec, ulog=False)
     pilot = args.pilot or spec.pilot
     check_external_pilot(pilot)
     if args.address is not None and args.backend != "ray":

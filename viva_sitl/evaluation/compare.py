@@ -27,7 +27,7 @@ from viva_sitl.evaluation.stats import BOOTSTRAP_SEED, RESAMPLES, _r, holm, pair
 # spec keys left out of the spec identity: recorded on their own (n, seed, pilot), where it came from (source),
 # compared on its own where it matters (speed), or not a change of the scenarios (frames)
 _SPEC_NOT_COMPARED = ("source", "n", "seed", "pilot", "speed", "frames", "timing", "pilot_cpu_factor",
-                      "pilot_latency_ms")  # fmt: skip
+                      "pilot_latency_ms", "ulog")  # fmt: skip
 
 
 def _run(doc: dict[str, Any]) -> dict[str, Any]:

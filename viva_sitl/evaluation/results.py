@@ -83,6 +83,7 @@ def spec_hash(spec: TrialSpec) -> str:
     d = dataclasses.asdict(spec)
     for key in ("source", "n", "seed", "pilot"):
         d.pop(key, None)
+    d.pop("ulog", None)  # whether trials write a ULog changes no result (and keeps older runs' hashes)
     text = json.dumps(d, sort_keys=True, separators=(",", ":"), default=str)
     return hashlib.sha256(text.encode()).hexdigest()
 

@@ -73,8 +73,8 @@ def run_inprocess_trial(
     frame_period_s = 1.0 / (frame_hz if frame_hz > 0 else 30.0)
     next_frame_s = 0.0
     writer: cv2.VideoWriter | None = None
-    # the trial's PX4 ULog (log.ulg), as `viva-sitl run` writes one
-    flog = _open_flight_log(trial_dir, vehicle)
+    # the trial's PX4 ULog (log.ulg), as `viva-sitl run` writes one, unless the spec's trials.ulog is false
+    flog = _open_flight_log(trial_dir, vehicle) if spec.ulog else None
     frame = None
     cmd: EavCommand | None = None
     try:

@@ -16,6 +16,7 @@ from dataclasses import dataclass
 
 from pymavlink.dialects.v20 import common as mavlink2
 
+from viva_sitl.autopilot.failures import FailureType, FailureUnit
 from viva_sitl.autopilot.types import FlightMode, LandedState
 from viva_sitl.dynamics import EavState, quat_from_euler
 from viva_sitl.mavlink.base import UINT16_MAX, MavMessage, VehicleLink, clamp_int, time_boot_ms, time_boot_us
@@ -43,6 +44,14 @@ SENSORS_ALWAYS = (
 )
 SENSOR_RC = M.MAV_SYS_STATUS_SENSOR_RC_RECEIVER
 SENSOR_PREARM = M.MAV_SYS_STATUS_PREARM_CHECK
+# HIGHRES_IMU fields_updated bits of each sensor unit (accel xyz, gyro xyz, mag xyz, abs/diff pressure, pressure
+# altitude, temperature)
+_IMU_FIELD_BITS: dict[FailureUnit, int] = {
+    FailureUnit.SENSOR_ACCEL: 0x7,
+    FailureUnit.SENSOR_GYRO: 0x38,
+    FailureUnit.SENSOR_MAG: 0x1C0,
+    FailureUnit.SENSOR_BARO: 0x1E00,
+}
 
 AUTOPILOT_CAPABILITIES = (
     M.MAV_PROTOCOL_CAPABILITY_MISSION_FLOAT
@@ -200,6 +209,10 @@ class TelemetryBuilder:
         self._rates = (0.0, 0.0, 0.0)
         self.last_manual_input_s = -math.inf  # sim time of the last MANUAL_CONTROL (RC "present" bit)
         self.prearm_ok: Callable[[], bool] = lambda: not self.vehicle.autopilot.armed
+        # the last good raw readings, repeated while an injected STUCK failure holds that sensor (as PX4's simulated
+        # sensors repeat their last sample): GPS_RAW_INT's fields, HIGHRES_IMU's accel / gyro / mag / baro triples
+        self._gps_last: tuple[int, ...] | None = None
+        self._imu_last: dict[FailureUnit, tuple[float, ...]] = {}
         self.builders: dict[int, Callable[[], MavMessage | None]] = {
             M.MAVLINK_MSG_ID_HEARTBEAT: self.heartbeat,
             M.MAVLINK_MSG_ID_SYS_STATUS: self.sys_status,
@@ -358,16 +371,30 @@ class TelemetryBuilder:
         mag = to_body(0.21, 0.01, 0.42)
         alt = s.alt_amsl_m
         pressure_hpa = 1013.25 * max(1.0 - 2.25577e-5 * alt, 1e-6) ** 5.25588
+        live: dict[FailureUnit, tuple[float, ...]] = {
+            FailureUnit.SENSOR_ACCEL: tuple(_f(v) for v in acc),
+            FailureUnit.SENSOR_GYRO: tuple(_f(v) for v in s.body_rates_rad_s),
+            FailureUnit.SENSOR_MAG: tuple(_f(v) for v in mag),
+            FailureUnit.SENSOR_BARO: (_f(pressure_hpa), 0.0, _f(alt), _f(15.0 - 0.0065 * alt)),
+        }
+        updated = 0x1FFF
+        fault_of = getattr(ap, "sensor_fault", None)
+        for unit, bits in _IMU_FIELD_BITS.items():
+            fault = fault_of(unit) if callable(fault_of) else None
+            if fault is FailureType.OFF:  # no new sample: PX4 sends the last one it had, its bits not set
+                live[unit] = self._imu_last.get(unit, (0.0,) * len(live[unit]))
+                updated &= ~bits
+            elif fault is FailureType.STUCK:  # the last sample repeated
+                live[unit] = self._imu_last.setdefault(unit, live[unit])
+            else:
+                self._imu_last[unit] = live[unit]
         return M.MAVLink_highres_imu_message(
             time_boot_us(self.vehicle),
-            *(_f(v) for v in acc),
-            *s.body_rates_rad_s,
-            *(_f(v) for v in mag),
-            _f(pressure_hpa),
-            0.0,
-            _f(alt),
-            _f(15.0 - 0.0065 * alt),
-            0x1FFF,
+            *live[FailureUnit.SENSOR_ACCEL],
+            *live[FailureUnit.SENSOR_GYRO],
+            *live[FailureUnit.SENSOR_MAG],
+            *live[FailureUnit.SENSOR_BARO],
+            updated,
             0,
         )
 
@@ -409,23 +436,40 @@ class TelemetryBuilder:
                 time_boot_us(self.vehicle), M.GPS_FIX_TYPE_NO_GPS, 0, 0, 0, UINT16_MAX, UINT16_MAX,
                 UINT16_MAX, UINT16_MAX, 0, 0, 0, 0, 0, 0, 0,
             )  # fmt: skip
+        fault_of = getattr(self.vehicle.autopilot, "sensor_fault", None)
+        fault = fault_of(FailureUnit.SENSOR_GPS) if callable(fault_of) else None
+        if fault is FailureType.STUCK:  # PX4 main re-publishes the last fix, its time included
+            if self._gps_last is None:
+                self._gps_last = self._gps_fields(0.0, 0.0, 0.0)
+            return M.MAVLink_gps_raw_int_message(*self._gps_last)
+        if fault is FailureType.WRONG:  # PX4 main: lat/lon +1 deg, altitude +100 m, ground speed -1 m/s
+            return M.MAVLink_gps_raw_int_message(*self._gps_fields(1.0, 1.0, 100.0, speed_off_m_s=-1.0))
+        self._gps_last = fields = self._gps_fields(0.0, 0.0, 0.0)
+        return M.MAVLink_gps_raw_int_message(*fields)
+
+    def _gps_fields(
+        self, dlat_deg: float, dlon_deg: float, dalt_m: float, *, speed_off_m_s: float = 0.0
+    ) -> tuple[int, ...]:
+        """GPS_RAW_INT's fields from the true state, offset as an injected WRONG GPS does."""
         s = self.snapshot()
         cog = (
             math.degrees(math.atan2(s.vel_ned_m_s[1], s.vel_ned_m_s[0])) % 360.0
             if s.ground_speed_m_s > 0.1
             else 0.0
         )
-        alt_mm = clamp_int(s.alt_amsl_m * 1000.0, -(2**31), 2**31 - 1)
-        return M.MAVLink_gps_raw_int_message(
+        lat = s.lat_deg + dlat_deg
+        lon = (s.lon_deg + dlon_deg + 180.0) % 360.0 - 180.0
+        alt_mm = clamp_int((s.alt_amsl_m + dalt_m) * 1000.0, -(2**31), 2**31 - 1)
+        return (
             time_boot_us(self.vehicle),
             M.GPS_FIX_TYPE_3D_FIX,
-            clamp_int(s.lat_deg * 1e7, -900000000, 900000000),
-            clamp_int(s.lon_deg * 1e7, -1800000000, 1800000000),
+            clamp_int(lat * 1e7, -900000000, 900000000),
+            clamp_int(lon * 1e7, -1800000000, 1800000000),
             alt_mm,
             80,  # HDOP 0.8
             120,  # VDOP 1.2
-            clamp_int(s.ground_speed_m_s * 100.0, 0, UINT16_MAX - 1),
-            clamp_int(cog * 100.0, 0, 35999),
+            clamp_int((s.ground_speed_m_s + speed_off_m_s) * 100.0, 0, UINT16_MAX - 1),
+            clamp_int(cog * 100.0, 0, 35999),  # PX4 leaves cog_rad as it was
             12,
             alt_mm,
             300,  # h_acc mm
