@@ -84,11 +84,20 @@ def policy() -> CachePolicy:
     return _policy
 
 
+def _codec_layout(codec: str) -> str:
+    """What else than the codec's name decides its bytes: the yuv420z levels stored as zstd (caches built when it
+    was level 0 alone get a new key, so that a cache is rebuilt with the faster layout, not kept)."""
+    if codec != "yuv420z" or tiles.YUVZ_MAX_LEVEL == 0:
+        return ""
+    return f" zstd<={tiles.YUVZ_MAX_LEVEL}@{tiles.YUVZ_COARSE_MIN_PSNR_DB:g}dB"
+
+
 def content_key(path: Path, policy: CachePolicy) -> str:
     """The cache key of a video file (see the module docstring)."""
     size = path.stat().st_size
     h = hashlib.sha256(
-        f"viva-sitl tiles v{tiles.FORMAT_VERSION} {policy.codec} {tiles.DEFAULT_TILE_PX} {size}".encode()
+        f"viva-sitl tiles v{tiles.FORMAT_VERSION} {policy.codec}{_codec_layout(policy.codec)} "
+        f"{tiles.DEFAULT_TILE_PX} {size}".encode()
     )
     with open(path, "rb") as f:
         span = max(0, size - SAMPLE_BYTES)
