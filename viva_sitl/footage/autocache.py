@@ -33,7 +33,7 @@ import logging
 import shutil
 import time
 from collections.abc import Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import IO
 
@@ -82,6 +82,42 @@ def set_policy(policy: CachePolicy) -> None:
 
 def policy() -> CachePolicy:
     return _policy
+
+
+def from_flags(
+    no_cache: bool, max_gb: float, root: Path | None, base: CachePolicy | None = None
+) -> CachePolicy:
+    """`base` (default: this process's policy) changed by `--no-cache` / `--cache-max-gb` / `--tile-cache-dir`
+    (root None keeps base's folder)."""
+    base = _policy if base is None else base
+    return replace(
+        base, enabled=base.enabled and not no_cache, max_bytes=int(max_gb * 2**30), root=root or base.root
+    )
+
+
+@contextlib.contextmanager
+def using_policy(p: CachePolicy) -> Iterator[None]:
+    """This process's policy is `p` inside the block, the previous one again after."""
+    before = _policy
+    set_policy(p)
+    try:
+        yield
+    finally:
+        set_policy(before)
+
+
+def policy_cli_args(p: CachePolicy | None = None) -> list[str]:
+    """`viva-sitl run` flags that give a child process policy `p` (default: this process's): what differs from a
+    fresh process's defaults (`--no-cache`, `--cache-max-gb`, `--tile-cache-dir`; `[]` for the defaults)."""
+    p = _policy if p is None else p
+    if not p.enabled:
+        return ["--no-cache"]
+    out = []
+    if p.max_bytes != DEFAULT_MAX_BYTES and p.max_bytes is not None:
+        out += ["--cache-max-gb", repr(p.max_bytes / 2**30)]
+    if p.root is not None:
+        out += ["--tile-cache-dir", str(p.root)]
+    return out
 
 
 def _codec_layout(codec: str) -> str:
