@@ -96,7 +96,9 @@ def bench_steps(args: argparse.Namespace, clip: Path) -> dict[str, Any]:
     t0 = time.perf_counter()
     _ours(clip, replace_ns(args, z=args.z[0]), auto).sim.close()
     build_s = time.perf_counter() - t0
-    (entry,) = [e for e in autocache.list_caches(auto.directory()) if e.source == str(clip.resolve())]
+    # the one just opened (caches of an older layout of the same clip may lie beside it until the LRU drops them)
+    entry = max((e for e in autocache.list_caches(auto.directory()) if e.source == str(clip.resolve())),
+                key=lambda e: e.last_used)  # fmt: skip
     out: dict[str, Any] = {
         "disk_mib": {"video": clip.stat().st_size / 2**20, **{c: disk_mib(p) for c, p in tiles.items()},
                      "auto_yuv420z": entry.bytes / 2**20},
