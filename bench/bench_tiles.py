@@ -96,7 +96,9 @@ def bench_steps(args: argparse.Namespace, clip: Path) -> dict[str, Any]:
     t0 = time.perf_counter()
     _ours(clip, replace_ns(args, z=args.z[0]), auto).sim.close()
     build_s = time.perf_counter() - t0
-    (entry,) = [e for e in autocache.list_caches(auto.directory()) if e.source == str(clip.resolve())]
+    # the one just opened (caches of an older layout of the same clip may lie beside it until the LRU drops them)
+    entry = max((e for e in autocache.list_caches(auto.directory()) if e.source == str(clip.resolve())),
+                key=lambda e: e.last_used)  # fmt: skip
     out: dict[str, Any] = {
         "disk_mib": {"video": clip.stat().st_size / 2**20, **{c: disk_mib(p) for c, p in tiles.items()},
                      "auto_yuv420z": entry.bytes / 2**20},
@@ -107,14 +109,19 @@ def bench_steps(args: argparse.Namespace, clip: Path) -> dict[str, Any]:
         a = replace_ns(args, z=z)
         why = None if args.no_ref else core.reference_available(args.ref_python)
         ref = core.Reference(args.ref_python, clip, a) if why is None else None
+        # a second reference (e.g. viva-safeland 0.2.5 beside 0.2.0), timed in the same rounds
+        refs2 = {f"ref_{_ref_version(py)}": core.Reference(py, clip, a) for py in args.ref_python_also
+                 if not args.no_ref and core.reference_available(py) is None}  # fmt: skip
         variants = {
             "ours_default_auto_cache": _ours(clip, a, auto),
             "ours_video_no_cache": _ours(clip, a, no_cache),
             "ours_tiles_jpeg": core.Ours(tiles["jpeg"], a, paper=False, render=True),
             "ours_tiles_raw": core.Ours(tiles["raw"], a, paper=False, render=True),
         }
-        runs: dict[str, list[float]] = {k: [] for k in ["ref", *variants]}
-        cpu: dict[str, list[float]] = {k: [] for k in ["ref", *variants]}  # CPU ms per step (all threads)
+        runs: dict[str, list[float]] = {k: [] for k in ["ref", *refs2, *variants]}
+        cpu: dict[str, list[float]] = {
+            k: [] for k in ["ref", *refs2, *variants]
+        }  # CPU ms per step (all threads)
         loads = []
         try:
             for _ in range(args.rounds):
@@ -122,6 +129,10 @@ def bench_steps(args: argparse.Namespace, clip: Path) -> dict[str, Any]:
                     r = ref.run()
                     runs["ref"].append(r[0])
                     cpu["ref"].append(r[1])
+                for name, o2 in refs2.items():
+                    r = o2.run()
+                    runs[name].append(r[0])
+                    cpu[name].append(r[1])
                 for name, o in variants.items():
                     r = o.run()
                     runs[name].append(r[0])
@@ -130,6 +141,8 @@ def bench_steps(args: argparse.Namespace, clip: Path) -> dict[str, Any]:
         finally:
             if ref is not None:
                 ref.close()
+            for o2 in refs2.values():
+                o2.close()
             for o in variants.values():
                 o.close()
         med = {k: statistics.median(v) for k, v in runs.items() if v}
@@ -141,11 +154,33 @@ def bench_steps(args: argparse.Namespace, clip: Path) -> dict[str, Any]:
             "cpu_ratio_to_ref": {
                 k: med_cpu["ref"] / v for k, v in med_cpu.items() if "ref" in med_cpu and k != "ref"
             },
+            # the same ratios against each further reference (per round, then the median: same-run pairs)
+            **{
+                f"cpu_ratio_to_{r2}": {
+                    k: statistics.median(a2 / b2 for a2, b2 in zip(cpu[r2], cpu[k], strict=True))
+                    for k in variants
+                }
+                for r2 in refs2
+            },  # fmt: skip
+            **{
+                f"ratio_to_{r2}": {
+                    k: statistics.median(b2 / a2 for a2, b2 in zip(runs[r2], runs[k], strict=True))
+                    for k in variants
+                }
+                for r2 in refs2
+            },  # fmt: skip
             "runs": runs,
             "loadavg": loads,
             "reference": why or "viva-safeland 0.2.0 DroneEnv.step",
         }
     return out
+
+
+def _ref_version(python: str) -> str:
+    """The viva-safeland version installed in interpreter `python` (e.g. "0.2.5")."""
+    probe = subprocess.run([python, "-c", "import importlib.metadata as m; print(m.version('viva-safeland'))"],
+                           capture_output=True, text=True)  # fmt: skip
+    return probe.stdout.strip() or "other"
 
 
 def replace_ns(ns: argparse.Namespace, **kw: Any) -> argparse.Namespace:
@@ -302,6 +337,18 @@ def to_markdown(res: dict[str, Any]) -> str:
                 lines.append(f"| {key[1:]} m | {name} | {m:.1f} | {'' if ratio is None else f'{ratio:.2f}x'} | "
                              f"{c:.2f} | {'' if cr is None else f'{cr:.2f}x'} | {'; '.join(v['loadavg'])} |")  # fmt: skip
         lines.append("")
+        more = [(key, k[len("cpu_ratio_to_") :]) for key, v in st.items() if key.startswith("z")
+                for k in v if k.startswith("cpu_ratio_to_ref_")]  # fmt: skip
+        if more:
+            lines += ["Against the further references (median of the per-round ratios):", "",
+                      "| z | variant | reference | wall ratio | CPU ratio |", "|---|---|---|---:|---:|"]  # fmt: skip
+            for key, r2 in more:
+                v = st[key]
+                for name, cr in v[f"cpu_ratio_to_{r2}"].items():
+                    lines.append(
+                        f"| {key[1:]} m | {name} | {r2} | {v[f'ratio_to_{r2}'][name]:.2f}x | {cr:.2f}x |"
+                    )
+            lines.append("")
     sc = res.get("scale")
     if sc:
         codecs = [k[len("tiles_") : -len("_1080p_ms")] for k in next(iter(sc.values())) if k.endswith("_1080p_ms")
@@ -350,6 +397,8 @@ def main() -> int:
     ap.add_argument("--only", nargs="*", default=["steps", "scale", "mem", "aa"])
     ap.add_argument("--ref-python", default="/work/refvenv/bin/python")
     ap.add_argument("--no-ref", action="store_true")
+    ap.add_argument("--ref-python-also", nargs="*", default=[],
+                    help="further reference interpreters timed in the same rounds (steps), e.g. viva-safeland 0.2.5's")  # fmt: skip
     ap.add_argument("--cache-dir", type=Path, default=core.DEFAULT_CACHE)
     ap.add_argument("--frames", type=int, default=60, help="frames of the 4K clip")
     ap.add_argument("--scale-frames", type=int, default=30, help="frames of the 1080p/4K/8K scale clips")

@@ -264,3 +264,75 @@ def test_footage_cache_list_and_clear(tmp_path: Path, capsys: pytest.CaptureFixt
     assert autocache.list_caches(root) == []
     assert footage_main(["cache", "list", "--tile-cache-dir", str(root)]) == 0
     assert "no automatic tile cache" in capsys.readouterr().out
+
+
+def test_trials_run_hands_the_cache_flags_to_its_spawned_workers(tmp_path: Path) -> None:
+    """`trials run --tile-cache-dir D` builds the footage's cache in D from inside the trial's (spawned) worker;
+    `--no-cache` builds none and the trial still flies over the video; this process's policy is restored after."""
+    import json
+
+    from viva_sitl.evaluation.cli import trials_main
+
+    clip = _clip(tmp_path / "clip", "trialclip", frames=6)
+    spec = tmp_path / "spec.toml"
+    spec.write_text(
+        '[trials]\nname = "cached"\nn = 1\nseed = 2\ntimeout_s = 30.0\n[scenario]\n'
+        f'footage = "{clip}"\nstart = "air"\nnorth_m = [-5.0, 5.0]\neast_m = [-5.0, 5.0]\naltitude_m = [6.0, 8.0]\n'
+        "land_at_s = 0.5\n",
+        encoding="utf-8",
+    )
+    mine = _policy(
+        tmp_path / "mine"
+    )  # min_pixels=1: handed to the workers, so the small clip counts as heavy
+    with autocache.using_policy(mine):
+        for flags, root in (([], tmp_path / "flagged"), (["--no-cache"], tmp_path / "off")):
+            out = tmp_path / f"out{len(flags)}"
+            argv = ["run", str(spec), "--pilot", "descend", "--jobs", "1", "-o", str(out), "--no-progress"]
+            assert trials_main([*argv, "--tile-cache-dir", str(root), *flags]) == 0
+            (row,) = json.loads((out / "results.json").read_text())["rows"]
+            assert row["end"] == "landed", row
+            built = autocache.list_caches(root) if root.exists() else []
+            assert [e.source for e in built] == ([] if flags else [str(clip.resolve())])
+        assert autocache.policy() == mine
+    assert not (tmp_path / "mine").exists()
+    assert autocache.policy_cli_args(mine) == ["--tile-cache-dir", str(tmp_path / "mine")]
+    assert autocache.policy_cli_args(autocache.from_flags(True, 32.0, None, mine)) == ["--no-cache"]
+    assert autocache.from_flags(False, 2.0, None, mine).max_bytes == 2 << 30
+
+
+def test_a_spawned_trial_worker_opens_footage_under_the_policy_it_is_handed(tmp_path: Path) -> None:
+    """The worker process (spawn: none of the parent's state) builds the cache where the handed policy says; the
+    parent here opens nothing under a cache (its scenarios are drawn with the cache off)."""
+    import multiprocessing as mp
+
+    from viva_sitl.evaluation import campaign
+    from viva_sitl.evaluation.spec import draw_scenarios, load_spec
+
+    clip = _clip(tmp_path / "clip", "workerclip", frames=6)
+    spec_path = tmp_path / "spec.toml"
+    spec_path.write_text(
+        '[trials]\nname = "w"\nn = 1\nseed = 2\ntimeout_s = 30.0\n[scenario]\n'
+        f'footage = "{clip}"\nstart = "air"\nnorth_m = [-5.0, 5.0]\neast_m = [-5.0, 5.0]\naltitude_m = [6.0, 8.0]\n'
+        "land_at_s = 0.5\n",
+        encoding="utf-8",
+    )
+    spec = load_spec(spec_path)
+    with autocache.using_policy(CachePolicy(enabled=False)):
+        (scenario,) = draw_scenarios(spec)
+    ctx = mp.get_context("spawn")
+    results = ctx.Queue()
+    parent, child = ctx.Pipe()
+    root = tmp_path / "handed"
+    p = ctx.Process(target=campaign._worker,
+                    args=(0, child, results, spec, "descend", str(tmp_path / "out"), False, 1, _policy(root)))  # fmt: skip
+    p.start()
+    try:
+        parent.send(scenario)
+        _, index, row = results.get(timeout=120)
+        parent.send(None)
+        p.join(30)
+    finally:
+        if p.is_alive():
+            p.kill()
+    assert index == scenario.index and row["end"] == "landed", row
+    assert [e.source for e in autocache.list_caches(root)] == [str(clip.resolve())]

@@ -26,7 +26,10 @@ from viva_sitl.footage.tiles import (
     COMMIT_FRAMES,
     INDEX_DTYPE,
     INDEX_DTYPE_V1,
+    YUVZ_COARSE_MIN_PSNR_DB,
     TileSource,
+    _decode,
+    _encode,
     build_tiles,
     tile_checksum,
 )
@@ -153,6 +156,26 @@ def test_yuv420z_tiles_render_within_the_stated_psnr_and_decode_each_level(
     finally:
         video.close()
         tiled.close()
+
+
+def test_yuv420z_level_1_tiles_are_4_2_0_only_where_that_keeps_the_bound() -> None:
+    """Level 0 is always zstd 4:2:0; a level-1 tile is zstd 4:2:0 when its round trip keeps the bound (smooth
+    chroma, as in video), jpeg 4:4:4 when 4:2:0 would blur sharp colour edges; level 2 is jpeg; all decode back."""
+    yy, xx = np.mgrid[0:256, 0:256]
+    smooth = np.dstack([(xx + yy) // 2, 128 + (xx - yy) // 4, 255 - yy]).astype(np.uint8)
+    sharp = np.zeros((256, 256, 3), np.uint8)
+    sharp[(xx + yy) % 2 == 0] = (0, 0, 255)  # one-pixel red/blue checkerboard: 4:2:0 averages it to purple
+    sharp[(xx + yy) % 2 == 1] = (255, 0, 0)
+    kinds = {}
+    for name, tile, level in (("l0 sharp", sharp, 0), ("l1 smooth", smooth, 1), ("l1 sharp", sharp, 1),
+                              ("l2 smooth", smooth, 2)):  # fmt: skip
+        data = _encode(tile, "yuv420z", 95, level)
+        kinds[name] = "zstd" if data[:4] == b"Y4Z1" else "jpeg" if data[:2] == b"\xff\xd8" else "?"
+        back = _decode(data, "yuv420z")
+        assert back is not None and back.shape == tile.shape
+        if name != "l0 sharp":
+            assert _psnr(back, tile) >= YUVZ_COARSE_MIN_PSNR_DB - 1.0, name
+    assert kinds == {"l0 sharp": "zstd", "l1 smooth": "zstd", "l1 sharp": "jpeg", "l2 smooth": "jpeg"}
 
 
 def test_tile_source_frames_equal_the_video_and_the_lru_is_capped(

@@ -10,7 +10,16 @@ import sys
 from pathlib import Path
 
 from viva_sitl import __version__
-from viva_sitl.cliargs import OneLineErrors, add_timing_flags, hfov, home, port, pose, positive_float
+from viva_sitl.cliargs import (
+    OneLineErrors,
+    add_cache_args,
+    add_timing_flags,
+    hfov,
+    home,
+    port,
+    pose,
+    positive_float,
+)
 
 
 def _footage_scale_flags(p: argparse.ArgumentParser) -> None:
@@ -226,23 +235,6 @@ def _cmd_render(args: argparse.Namespace) -> int:
         f"wrote {out} ({m.width_px}x{m.height_px}, footage frame {m.footage_frame_index}, coverage {m.coverage:.2f})"
     )
     return 0
-
-
-def add_cache_args(p: argparse.ArgumentParser) -> None:
-    """`--no-cache` / `--cache-max-gb` / `--cache-dir`: the automatic tile cache of heavy (>= ~4K) footage
-    (viva_sitl.footage.autocache)."""
-    g = p.add_argument_group("automatic tile cache of >= 4K footage")
-    g.add_argument(
-        "--no-cache", action="store_true", help="read heavy footage from the video, build no tile cache"
-    )
-    g.add_argument(
-        "--cache-max-gb", type=positive_float, default=32.0,
-        help="size bound of all automatic tile caches together; least recently used caches are removed "
-        "(default 32; ~7-9 MiB per 4K frame, ~14 GB per minute of 30 fps 4K)",
-    )  # fmt: skip
-    g.add_argument(
-        "--tile-cache-dir", type=Path, help="where they go (default $XDG_CACHE_HOME/viva-sitl/tiles-auto)"
-    )
 
 
 def apply_cache_args(args: argparse.Namespace) -> None:

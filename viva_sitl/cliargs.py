@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import math
+from pathlib import Path
 from typing import NoReturn
 
 from viva_sitl.geo import GeoOrigin, parse_home
@@ -134,3 +135,20 @@ def add_timing_flags(parser: argparse.ArgumentParser, default_from: str) -> None
         help="charged timing: a fixed latency per frame: what the pilot sends after frame k takes effect no earlier "
         "than the frame's sim time + MS (with --pilot-cpu-factor, the later of the two; default 0)",
     )  # fmt: skip
+
+
+def add_cache_args(p: argparse.ArgumentParser) -> None:
+    """`--no-cache` / `--cache-max-gb` / `--cache-dir`: the automatic tile cache of heavy (>= ~4K) footage
+    (viva_sitl.footage.autocache)."""
+    g = p.add_argument_group("automatic tile cache of >= 4K footage")
+    g.add_argument(
+        "--no-cache", action="store_true", help="read heavy footage from the video, build no tile cache"
+    )
+    g.add_argument(
+        "--cache-max-gb", type=positive_float, default=32.0,
+        help="size bound of all automatic tile caches together; least recently used caches are removed "
+        "(default 32; ~7-9 MiB per 4K frame, ~15 GB per minute of 30 fps 4K)",
+    )  # fmt: skip
+    g.add_argument(
+        "--tile-cache-dir", type=Path, help="where they go (default $XDG_CACHE_HOME/viva-sitl/tiles-auto)"
+    )

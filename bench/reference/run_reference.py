@@ -1,4 +1,4 @@
-"""Time the REFERENCE implementation (viva-safeland 0.2.0, `viva.DroneEnv`) stepping in rgb_array mode.
+"""Time the REFERENCE implementation (viva-safeland 0.2.0 or 0.2.5, `viva.DroneEnv`) stepping in rgb_array mode.
 
 Runs under the reference's own interpreter (Python >= 3.12), e.g.:
 
@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import inspect
 import io
 import json
 import math
@@ -154,7 +155,12 @@ def quality(env: DroneEnv, args: argparse.Namespace, z_m: float) -> dict[str, fl
         args.z, args.psi_deg = saved
     frame = env.frame
     cam = env.simulator.camera
-    _view, pts = cam.get_drone_view(frame, env.simulator.drone.state[0], -env.simulator.drone.psi_deg)
+    state = env.simulator.drone.state[0]
+    if "pitch" in inspect.signature(cam.get_drone_view).parameters:  # 0.2.5: (frame, state, roll, pitch, yaw)
+        d = env.simulator.drone
+        _view, pts = cam.get_drone_view(frame, state, d.roll_deg, d.pitch_deg, d.psi_deg)
+    else:  # 0.2.0: (frame, state, yaw) with the yaw negated
+        _view, pts = cam.get_drone_view(frame, state, -env.simulator.drone.psi_deg)
     w, h = (int(v) for v in cam.output)
     dst = np.array([[0, 0], [w - 1, 0], [w - 1, h - 1], [0, h - 1]], np.float32)
     m = cv2.getPerspectiveTransform(pts.astype(np.float32), dst)

@@ -262,6 +262,31 @@ class RegionPyramid(Sequence[U8]):
             self.filled_levels.add(level + 1)
         self.region_px = (x0, y0, x1, y1)
 
+    def halve_into_next(self, level: int, lx0: int, ly0: int, lx1: int, ly1: int) -> None:
+        """Fill level `level + 1` over the level-`level` box [ly0:ly1, lx0:lx1] by halving level `level`'s pixels
+        there (2x2 box averages, as the pyramid itself is built): for a tile cache whose coarse levels cost a
+        decode each (jpeg), the trilinear blend's second level then costs one resize instead of its own tiles.
+
+        Level `level` must hold data over the box, `exact_level(level + 1)` must hold and the box must start on
+        even pixels (its end is even anyway: the level's size is even), so that each output pixel is exactly the
+        box average of the four level pixels under it."""
+        if level not in self.filled_levels:
+            raise ValueError(f"level {level} is not filled: nothing to halve")
+        if not self.exact_level(level + 1):
+            raise ValueError(
+                f"level {level + 1} of a {self.width_px}x{self.height_px} frame is not an exact halving"
+            )
+        lw, lh = self.sizes_px[level]
+        if not (0 <= lx0 < lx1 <= lw and 0 <= ly0 < ly1 <= lh) or (lx0 | ly0 | lx1 | ly1) & 1:
+            raise ValueError(
+                f"({lx0}, {ly0})-({lx1}, {ly1}) is not an even box inside level {level} ({lw}x{lh})"
+            )
+        src = self._buffers[level][ly0:ly1, lx0:lx1]
+        box = (lx0 >> 1, ly0 >> 1, lx1 >> 1, ly1 >> 1)
+        dst = self._buffer(level + 1, box)[box[1] : box[3], box[0] : box[2]]
+        cv2.resize(src, (box[2] - box[0], box[3] - box[1]), dst=dst, interpolation=cv2.INTER_AREA)
+        self.filled_levels.add(level + 1)
+
     @staticmethod
     def _paste(dst: U8, img: U8, to_bgra: bool) -> None:
         """Copy `img` into `dst`; `to_bgra`: a BGR image into a BGRA buffer, converted in the same pass."""

@@ -62,6 +62,7 @@ from viva_sitl.evaluation.results import (
 )
 from viva_sitl.evaluation.scoring import COLUMNS, ScoreRow, score_trial
 from viva_sitl.evaluation.spec import Scenario, TrialSpec, draw_scenarios
+from viva_sitl.footage import autocache
 
 
 def default_wall_limit_s(spec: TrialSpec, pilot: str) -> float:
@@ -121,11 +122,21 @@ def _share_cores(threads: int) -> None:
     os.environ.setdefault(DECODE_THREADS_ENV, str(threads))  # the user's own setting wins
 
 
+def _use_cache_policy(cache_policy: Any) -> None:
+    """A worker (spawned: no state of the parent's) opens footage under the campaign's automatic-cache policy
+    (`trials run --no-cache / --cache-max-gb`, or the caller's `autocache.set_policy`)."""
+    if cache_policy is not None:
+        from viva_sitl.footage import autocache
+
+        autocache.set_policy(cache_policy)
+
+
 def _ray_one(spec: TrialSpec, scenario: Scenario, pilot: str, out_dir: str, slot: int, video: bool,
-             driver_cwd: str, marker: str) -> tuple[Row, bytes | None]:  # fmt: skip
+             driver_cwd: str, marker: str, cache_policy: Any = None) -> tuple[Row, bytes | None]:  # fmt: skip
     """One trial on a Ray worker: (row, None) when it wrote its trial folder into the driver's OUT (the worker sees
     the driver's marker file there), else (row, the folder as a .tar.gz) for the driver to unpack."""
     _share_cores(1)  # the task reserved one CPU (num_cpus=1)
+    _use_cache_policy(cache_policy)
     shared = os.path.exists(marker)
     if shared and os.path.isdir(driver_cwd):
         # the driver's own files: relative paths (footage, an external pilot's script) resolve as they do there
@@ -158,9 +169,10 @@ def _unpack_dir(data: bytes, folder: Path) -> None:
 
 
 def _worker(slot: int, conn: Connection, results: Any, spec: TrialSpec, pilot: str, out_dir: str, video: bool,
-            threads: int) -> None:  # fmt: skip
+            threads: int, cache_policy: Any = None) -> None:  # fmt: skip
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent handles Ctrl-C and stops us with SIGTERM
     _share_cores(threads)
+    _use_cache_policy(cache_policy)
 
     def _term(*_: object) -> None:
         raise SystemExit(143)  # unwinds: the trial's finally blocks end the processes it started
@@ -197,7 +209,8 @@ def _local(spec: TrialSpec, pilot: str, todo: list[Scenario], out_dir: Path, job
 
     def start(slot: int) -> _Slot:
         parent, child = ctx.Pipe()
-        p = ctx.Process(target=_worker, args=(slot, child, results, spec, pilot, str(out_dir), video, threads),
+        p = ctx.Process(target=_worker, args=(slot, child, results, spec, pilot, str(out_dir), video, threads,
+                                              autocache.policy()),
                         name=f"viva-trial-{slot}", daemon=True)  # fmt: skip
         p.start()
         child.close()
@@ -295,7 +308,7 @@ def _ray(spec: TrialSpec, pilot: str, todo: list[Scenario], out_dir: Path, jobs:
             while queue and len(running) < jobs:
                 sc = queue.pop(0)
                 ref = task.remote(spec, sc, pilot, str(out_abs), slot % max(jobs, 1), video, os.getcwd(),
-                                  str(marker))  # fmt: skip
+                                  str(marker), autocache.policy())  # fmt: skip
                 slot += 1
                 running[ref] = (sc.index, time.monotonic())
             done, _ = ray.wait(list(running), num_returns=1, timeout=0.5)

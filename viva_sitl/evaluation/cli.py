@@ -11,7 +11,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from viva_sitl.cliargs import add_timing_flags, positive_float
+from viva_sitl.cliargs import add_cache_args, add_timing_flags, positive_float
 from viva_sitl.cliargs import nonneg_int as _nonneg_int
 from viva_sitl.cliargs import port as _port
 from viva_sitl.cliargs import pos_int as _pos_int
@@ -74,6 +74,9 @@ def build_parser() -> argparse.ArgumentParser:
         "pilot (e.g. CPU vision) needs a lower one; the scenarios do not change",
     )  # fmt: skip
     add_timing_flags(r, "the spec's trials.timing")
+    add_cache_args(
+        r
+    )  # --no-cache / --cache-max-gb / --tile-cache-dir, as on `viva-sitl run`; every trial's too
     r.add_argument("--no-progress", action="store_true", help="no progress bar")
     from viva_sitl.evaluation.human import MAVSDK_API_PORT, QGC_GCS_PORT, QGC_VIDEO_PORT
 
@@ -274,6 +277,7 @@ def check_external_pilot(pilot: str) -> None:
 def _run(args: argparse.Namespace) -> int:
     from viva_sitl.evaluation.campaign import finished_trials, run_campaign
     from viva_sitl.evaluation.spec import load_spec
+    from viva_sitl.footage import autocache
 
     spec = load_spec(args.spec)
     if args.frames:
@@ -298,11 +302,16 @@ def _run(args: argparse.Namespace) -> int:
     name = f"{spec.name}-{safe}" + ("-trial-" + "-".join(map(str, args.trial)) if args.trial else "")
     out = Path(args.out) if args.out else Path("trials-out") / name
     try:
-        camp = run_campaign(
-            spec, pilot, out, n=args.n, seed=args.seed, jobs=args.jobs, backend=args.backend,
-            address=args.address, resume=args.resume, force=args.force, only=args.trial, video=args.video,
-            progress=not args.no_progress,
-        )  # fmt: skip
+        # run_campaign hands this process's automatic-cache policy to the trials' workers; the flags change it
+        # for this campaign only (an in-process caller's own policy is restored after)
+        with autocache.using_policy(
+            autocache.from_flags(args.no_cache, args.cache_max_gb, args.tile_cache_dir)
+        ):
+            camp = run_campaign(
+                spec, pilot, out, n=args.n, seed=args.seed, jobs=args.jobs, backend=args.backend,
+                address=args.address, resume=args.resume, force=args.force, only=args.trial, video=args.video,
+                progress=not args.no_progress,
+            )  # fmt: skip
     except KeyboardInterrupt:
         from viva_sitl.evaluation.report import read_results
 

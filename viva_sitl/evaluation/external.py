@@ -53,6 +53,7 @@ from viva_sitl.evaluation.runner import limits_of, world_of
 from viva_sitl.evaluation.scoring import ScoreRow, score_trial
 from viva_sitl.evaluation.session import TRIAL_PREFIX, write_scenario_file
 from viva_sitl.evaluation.spec import Scenario, TrialSpec
+from viva_sitl.footage import autocache
 
 READY_PREFIX = "viva-sitl ready"
 START_TIMEOUT_S = 60.0
@@ -199,6 +200,7 @@ def run_external_trial(
     if spec.timing != "realtime":
         sitl_cmd += ["--timing", spec.timing, "--pilot-cpu-factor", f"{spec.pilot_cpu_factor:g}",
                      "--pilot-latency-ms", f"{spec.pilot_latency_ms:g}"]  # fmt: skip
+    sitl_cmd += autocache.policy_cli_args()  # the campaign's --no-cache / --cache-max-gb
     sitl_cmd += list(sitl_args)
     if video:
         sitl_cmd += ["--record", str(trial_dir / "vac.mp4")]

@@ -33,13 +33,14 @@ import logging
 import shutil
 import time
 from collections.abc import Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import IO
 
 from viva_sitl.footage import tiles
 from viva_sitl.footage.errors import FootageError
 from viva_sitl.footage.paths import default_cache_dir
+from viva_sitl.footage.tiles import format as tile_format  # the codec's constants live (and are set) there
 
 log = logging.getLogger("viva_sitl.footage.autocache")
 
@@ -84,11 +85,56 @@ def policy() -> CachePolicy:
     return _policy
 
 
+def from_flags(
+    no_cache: bool, max_gb: float, root: Path | None, base: CachePolicy | None = None
+) -> CachePolicy:
+    """`base` (default: this process's policy) changed by `--no-cache` / `--cache-max-gb` / `--tile-cache-dir`
+    (root None keeps base's folder)."""
+    base = _policy if base is None else base
+    return replace(
+        base, enabled=base.enabled and not no_cache, max_bytes=int(max_gb * 2**30), root=root or base.root
+    )
+
+
+@contextlib.contextmanager
+def using_policy(p: CachePolicy) -> Iterator[None]:
+    """This process's policy is `p` inside the block, the previous one again after."""
+    before = _policy
+    set_policy(p)
+    try:
+        yield
+    finally:
+        set_policy(before)
+
+
+def policy_cli_args(p: CachePolicy | None = None) -> list[str]:
+    """`viva-sitl run` flags that give a child process policy `p` (default: this process's): what differs from a
+    fresh process's defaults (`--no-cache`, `--cache-max-gb`, `--tile-cache-dir`; `[]` for the defaults)."""
+    p = _policy if p is None else p
+    if not p.enabled:
+        return ["--no-cache"]
+    out = []
+    if p.max_bytes != DEFAULT_MAX_BYTES and p.max_bytes is not None:
+        out += ["--cache-max-gb", repr(p.max_bytes / 2**30)]
+    if p.root is not None:
+        out += ["--tile-cache-dir", str(p.root)]
+    return out
+
+
+def _codec_layout(codec: str) -> str:
+    """What else than the codec's name decides its bytes: the yuv420z levels stored as zstd (caches built when it
+    was level 0 alone get a new key, so that a cache is rebuilt with the faster layout, not kept)."""
+    if codec != "yuv420z" or tile_format.YUVZ_MAX_LEVEL == 0:
+        return ""
+    return f" zstd<={tile_format.YUVZ_MAX_LEVEL}@{tile_format.YUVZ_COARSE_MIN_PSNR_DB:g}dB"
+
+
 def content_key(path: Path, policy: CachePolicy) -> str:
     """The cache key of a video file (see the module docstring)."""
     size = path.stat().st_size
     h = hashlib.sha256(
-        f"viva-sitl tiles v{tiles.FORMAT_VERSION} {policy.codec} {tiles.DEFAULT_TILE_PX} {size}".encode()
+        f"viva-sitl tiles v{tiles.FORMAT_VERSION} {policy.codec}{_codec_layout(policy.codec)} "
+        f"{tiles.DEFAULT_TILE_PX} {size}".encode()
     )
     with open(path, "rb") as f:
         span = max(0, size - SAMPLE_BYTES)

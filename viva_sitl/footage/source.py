@@ -65,7 +65,8 @@ class FootageCapabilities:
     decoder). `ground_view`: an edgeless procedural ground, rendered through `ground_view()` from a window drawn
     around the camera's footprint. `per_view`: the source keeps state that follows ONE camera (the ground window),
     so each concurrent view needs its own source; without it one open source may serve several views (a vector env
-    shares it).
+    shares it). `region_decodes`: each region read decodes compressed data (a tile cache's jpeg / yuv420z tiles; not
+    raw tiles), so a coarser level is cheaper to derive by halving a finer one than to read.
     """
 
     region: RegionRead = RegionRead.NONE
@@ -73,6 +74,7 @@ class FootageCapabilities:
     prefetch: bool = False
     ground_view: bool = False
     per_view: bool = False
+    region_decodes: bool = False
 
 
 class FootageSource(abc.ABC):

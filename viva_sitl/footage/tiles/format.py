@@ -39,7 +39,14 @@ INDEX_DTYPE_V1 = np.dtype(
 _MASK64 = (1 << 64) - 1
 _RAW_MAGIC = b"RAWT"
 _YUVZ_MAGIC = b"Y4Z1"
-YUVZ_LEVEL = 3  # zstd level of the yuv420z codec's level-0 tiles (decode speed does not depend on it)
+YUVZ_LEVEL = 3  # zstd level of the yuv420z codec's zstd tiles (decode speed does not depend on it)
+# the yuv420z codec's levels stored as zstd YUV 4:2:0 (the rest as jpeg 4:4:4): levels 0 and 1, the levels a view
+# reads up to ~4 footage px per VAC px (~300 m over the 4K bench clip), decoded ~3.3x faster than jpeg. A level >= 1
+# tile has the chroma resolution 4:2:0 halves again: it is stored so only where its round trip keeps
+# YUVZ_COARSE_MIN_PSNR_DB (jpeg q95's own level-1 figure; 93-100 % of the 4K bench clip's level-1 tiles, ~0.8 MiB
+# more per 4K frame), as jpeg 4:4:4 elsewhere (sharp chroma edges: 31 dB as 4:2:0 in the tests' synthetic clip)
+YUVZ_MAX_LEVEL = 1
+YUVZ_COARSE_MIN_PSNR_DB = 44.0
 # full-resolution chroma: 4:2:0 costs 4-7 dB on sharp coarse levels (bench/results_tiles.md) for ~30 % less size
 _JPEG_444 = (cv2.IMWRITE_JPEG_SAMPLING_FACTOR, cv2.IMWRITE_JPEG_SAMPLING_FACTOR_444)
 
@@ -99,9 +106,10 @@ FORMATS: dict[int, tuple[np.dtype[Any], Callable[[bytes], int]]] = {
 }
 
 
-def _encode_yuvz(tile: U8) -> bytes:
+def _encode_yuvz(tile: U8, min_psnr_db: float | None = None) -> bytes | None:
     """A BGR tile as planar YUV 4:2:0 (I420, OpenCV's BT.601 conversion) compressed with zstd; an odd width or
-    height is padded by repeating the last column/row (the header keeps the true size)."""
+    height is padded by repeating the last column/row (the header keeps the true size). With `min_psnr_db`: None
+    when the round trip through 4:2:0 is below it."""
     import zstandard
 
     h, w = tile.shape[:2]
@@ -109,6 +117,10 @@ def _encode_yuvz(tile: U8) -> bytes:
     if w % 2 or h % 2:
         even = np.asarray(cv2.copyMakeBorder(tile, 0, h % 2, 0, w % 2, cv2.BORDER_REPLICATE), np.uint8)
     yuv = cv2.cvtColor(even, cv2.COLOR_BGR2YUV_I420)
+    if min_psnr_db is not None:
+        back = cv2.cvtColor(yuv, cv2.COLOR_YUV2BGR_I420)
+        if cv2.PSNR(np.ascontiguousarray(back[:h, :w]), tile) < min_psnr_db:
+            return None
     body = zstandard.ZstdCompressor(level=YUVZ_LEVEL).compress(yuv.tobytes())
     return _YUVZ_MAGIC + int(w).to_bytes(2, "little") + int(h).to_bytes(2, "little") + body
 
@@ -140,13 +152,20 @@ def _decode_yuvz(data: bytes | memoryview) -> U8 | None:
 def _encode(tile: U8, codec: str, quality: int, level: int = 0) -> bytes:
     """One tile's bytes. "yuv420z" is two codecs by level: level 0 as zstd-compressed YUV 4:2:0 (the video's own
     chroma resolution: ~47 dB, decoded ~4x faster than a JPEG), coarser levels as JPEG 4:4:4 (4:2:0 there costs
-    5-10 dB: a box-halved level has full-resolution chroma again; bench/results_tiles.md, session 10)."""
+    5-10 dB on sharp images: a box-halved level has full-resolution chroma again; bench/results_tiles.md, session
+    10) except level-1 tiles whose 4:2:0 round trip keeps YUVZ_COARSE_MIN_PSNR_DB (YUVZ_MAX_LEVEL; the reader
+    tells the two by the tile's magic)."""
     if codec == "raw":
         h, w = tile.shape[:2]
         return _RAW_MAGIC + int(w).to_bytes(2, "little") + int(h).to_bytes(2, "little") + tile.tobytes()
     if codec == "yuv420z":
-        if level == 0:
-            return _encode_yuvz(tile)
+        data = (
+            _encode_yuvz(tile, None if level == 0 else YUVZ_COARSE_MIN_PSNR_DB)
+            if level <= YUVZ_MAX_LEVEL
+            else None
+        )
+        if data is not None:
+            return data
         codec = "jpeg"
     if codec == "jpeg":
         ok, buf = cv2.imencode(".jpg", tile, [cv2.IMWRITE_JPEG_QUALITY, quality, *_JPEG_444])

@@ -31,7 +31,8 @@ from viva_sitl.footage.tiles.format import (
 )
 from viva_sitl.footage.tiles.settings import TileSettings
 
-_TILE_CAPABILITIES = FootageCapabilities(region=RegionRead.TILES)
+_TILE_CAPABILITIES = FootageCapabilities(region=RegionRead.TILES)  # raw tiles: copied, not decoded
+_DECODED_TILE_CAPABILITIES = FootageCapabilities(region=RegionRead.TILES, region_decodes=True)
 
 
 class TileCache:
@@ -305,8 +306,8 @@ class TileSource(FootageSource):
 
     @property
     def capabilities(self) -> FootageCapabilities:
-        """Regions of the stored pyramid levels (only the tiles under them decoded)."""
-        return _TILE_CAPABILITIES
+        """Regions of the stored pyramid levels (only the tiles under them decoded; raw tiles need no decoding)."""
+        return _TILE_CAPABILITIES if self.cache.codec == "raw" else _DECODED_TILE_CAPABILITIES
 
     @property
     def fps(self) -> float:
