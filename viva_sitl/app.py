@@ -356,7 +356,7 @@ class SitlApp:
             if busy_run >= NEVER_IDLE_QUANTA:
                 why = (
                     f"the pilot (pid {self.timing_stats.pilot_pid}) never became idle for {busy_run} quanta "
-                    f"({busy_run * NEVER_IDLE_GIVE_UP_S:g} s of wall time): {self.timing.value} timing needs a "
+                    f"(at least {busy_run * NEVER_IDLE_GIVE_UP_S:g} s of its CPU time): {self.timing.value} timing needs a "
                     "pilot that waits for input (a busy-polling loop never does); run it with --timing realtime"
                 )
                 log.error("%s", why)

@@ -13,8 +13,9 @@
   (from the OS, which load barely changes) times `pilot_cpu_factor` (2 = a companion computer 2x slower than this
   CPU); what it sent while computing takes effect that much simulated time later (the endpoint holds it until then).
 
-A pilot that is never idle (busy polling) cannot be lockstepped: after NEVER_IDLE_GIVE_UP_S wall seconds of waiting
-the quantum runs anyway, counted in `never_idle` (the trial's timing record says `lockstep_held: false`); after
+A pilot that is never idle (busy polling) cannot be lockstepped: once it has used NEVER_IDLE_GIVE_UP_S seconds of CPU
+in one quantum's wait (CPU, not wall time: a long computation on a loaded machine takes more wall time but the same
+CPU, and must not be mistaken for a busy loop), or NEVER_IDLE_WALL_MAX_S wall seconds passed, the quantum runs anyway, counted in `never_idle` (the trial's timing record says `lockstep_held: false`); after
 NEVER_IDLE_QUANTA such quanta in a row a trial ends as pilot_error with that reason, and a plain run goes on in
 realtime.
 """
@@ -33,7 +34,9 @@ from viva_sitl.pilotwatch import IDLE_CPU_FRACTION, PilotTree, TreeSample
 
 QUANTUM_S = 0.02  # sim seconds between two waits for the pilot (its reaction time is at most one quantum)
 SETTLE_S = 0.001  # wall seconds between the two looks that find a pilot idle
-NEVER_IDLE_GIVE_UP_S = 2.0  # wall seconds one quantum waits for a pilot that stays busy
+NEVER_IDLE_GIVE_UP_S = 2.0  # CPU seconds of the pilot's after which one quantum stops waiting for it
+NEVER_IDLE_WALL_MAX_S = 60.0  # and the wall seconds after which it stops whatever the CPU says
+VIDEO_WAIT_MAX_S = 10.0  # wall seconds a quantum waits for the video outputs to have sent its frames
 NEVER_IDLE_QUANTA = (
     3  # that many such quanta in a row: the pilot cannot be lockstepped (a trial ends pilot_error)
 )
@@ -130,7 +133,7 @@ class PilotGate:
         while True:
             await asyncio.sleep(SETTLE_S)  # the endpoint reads the pilot's messages meanwhile
             now = time.monotonic()
-            if not ready() and now - t0 < NEVER_IDLE_GIVE_UP_S:
+            if not ready() and now - t0 < VIDEO_WAIT_MAX_S:
                 continue
             cur = self.tree.sample(now)
             if cur.processes == 0:  # the pilot is gone: nothing to wait for
@@ -142,7 +145,7 @@ class PilotGate:
                 and cur.cpu_ns - prev.cpu_ns <= IDLE_CPU_FRACTION * (now - prev.wall_s) * 1e9
             ):
                 break
-            if now - t0 >= NEVER_IDLE_GIVE_UP_S:
+            if cur.cpu_ns - cpu_before >= NEVER_IDLE_GIVE_UP_S * 1e9 or now - t0 >= NEVER_IDLE_WALL_MAX_S:
                 self.stats.never_idle += 1
                 break
             prev = cur
