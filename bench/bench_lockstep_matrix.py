@@ -17,7 +17,8 @@ Pilots (real programs, real processes, as `trials run --pilot` runs them):
                 frame (seeded), every frame
     mavsdk      mission_scripts/mavsdk_precision_land.py (MAVSDK, its own wall-clock timers; ground start)
 --charged F1 F2 instead runs each pilot quiet at jobs 1 in charged timing with each factor and reports the mean time
-to land and touchdown per factor (a slower declared computer lands later). Prints a JSON report.
+to land, touchdown and the reaction to "land now" (sim s until its first command took effect) per factor. Prints a
+JSON report.
 """
 
 from __future__ import annotations
@@ -77,12 +78,22 @@ def busy_loops(n: int) -> Iterator[None]:
 
 
 def fly(spec: Any, cmd: str, jobs: int, busy: int) -> tuple[list[dict[str, Any]], float]:
+    """The campaign's rows (each with `_reaction_s`: sim seconds from "land now" to the pilot's first command taking
+    effect, from its end.json) and its wall time."""
     from viva_sitl.evaluation.campaign import run_campaign
 
     with tempfile.TemporaryDirectory(prefix="viva-matrix-") as d, busy_loops(busy):
         t0 = time.perf_counter()
         camp = run_campaign(spec, cmd, Path(d) / "o", jobs=jobs, progress=False)
-        return camp.ordered_rows(), time.perf_counter() - t0
+        wall = time.perf_counter() - t0
+        rows = camp.ordered_rows()
+        for r in rows:
+            try:
+                end = json.loads((Path(d) / "o" / "trials" / f"{r['trial']:04d}" / "end.json").read_text())
+                r["_reaction_s"] = round(end["reaction_t_s"] - end["land_now_t_s"], 4)
+            except (OSError, KeyError, TypeError, ValueError):
+                r["_reaction_s"] = None
+        return rows, wall
 
 
 def compare(ref: list[dict[str, Any]], rows: list[dict[str, Any]]) -> dict[str, Any]:
@@ -142,6 +153,7 @@ def main() -> int:
                     "ends": [r["end"] for r in rows], "wall_s": round(wall, 1),
                     "mean_time_to_land_s": round(sum(ttl) / len(ttl), 3) if ttl else None,
                     "time_to_land_s": ttl, "charged_cpu_s": [r.get("pilot_cpu_s") for r in rows],
+                    "reaction_s": [r["_reaction_s"] for r in rows],
                 }  # fmt: skip
                 print(pilot, f, json.dumps(out[f"factor {f:g}"]), flush=True)
             report["pilots"][pilot] = out
