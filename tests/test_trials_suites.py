@@ -104,7 +104,12 @@ def test_suite_run_and_card_on_the_synthetic_field(tmp_path: Path) -> None:
     assert c["suite"] == "synthetic-emergency@v1" and c["pilot"] == "oracle" and c["partial"] is True
     assert c["suite_sha256"] == suite_hash({s: su.frozen[s]["sha256"] for s in SPLITS})
     assert c["split_sha256"] == {"dev": su.frozen["dev"]["sha256"]} and list(c["splits"]) == ["dev"]
-    assert c["timing"] == {"timing": "lockstep", "pilot_cpu_factor": None, "speed": 4.0}
+    assert c["timing"] == {
+        "timing": "lockstep",
+        "pilot_cpu_factor": None,
+        "pilot_latency_ms": None,
+        "speed": 4.0,
+    }
     assert c["versions"]["viva-sitl"]
     dev = c["splits"]["dev"]
     res = json.loads((out / "dev" / "results.json").read_text())
