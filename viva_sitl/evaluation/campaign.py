@@ -122,17 +122,16 @@ def _share_cores(threads: int) -> None:
     os.environ.setdefault(DECODE_THREADS_ENV, str(threads))  # the user's own setting wins
 
 
-def _use_cache_policy(cache_policy: Any) -> None:
+def _use_cache_policy(cache_policy: autocache.CachePolicy | None) -> None:
     """A worker (spawned: no state of the parent's) opens footage under the campaign's automatic-cache policy
     (`trials run --no-cache / --cache-max-gb`, or the caller's `autocache.set_policy`)."""
     if cache_policy is not None:
-        from viva_sitl.footage import autocache
-
         autocache.set_policy(cache_policy)
 
 
 def _ray_one(spec: TrialSpec, scenario: Scenario, pilot: str, out_dir: str, slot: int, video: bool,
              driver_cwd: str, marker: str, cache_policy: Any = None) -> tuple[Row, bytes | None]:  # fmt: skip
+    # (cache_policy: Any, not CachePolicy: ray's typed .remote() overloads stop at 7 typed parameters)
     """One trial on a Ray worker: (row, None) when it wrote its trial folder into the driver's OUT (the worker sees
     the driver's marker file there), else (row, the folder as a .tar.gz) for the driver to unpack."""
     _share_cores(1)  # the task reserved one CPU (num_cpus=1)
@@ -169,7 +168,7 @@ def _unpack_dir(data: bytes, folder: Path) -> None:
 
 
 def _worker(slot: int, conn: Connection, results: Any, spec: TrialSpec, pilot: str, out_dir: str, video: bool,
-            threads: int, cache_policy: Any = None) -> None:  # fmt: skip
+            threads: int, cache_policy: autocache.CachePolicy | None = None) -> None:  # fmt: skip
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent handles Ctrl-C and stops us with SIGTERM
     _share_cores(threads)
     _use_cache_policy(cache_policy)
