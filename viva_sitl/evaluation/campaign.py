@@ -131,9 +131,9 @@ def _use_cache_policy(cache_policy: autocache.CachePolicy | None) -> None:
 
 def _ray_one(spec: TrialSpec, scenario: Scenario, pilot: str, out_dir: str, slot: int, video: bool,
              driver_cwd: str, marker: str, cache_policy: Any = None) -> tuple[Row, bytes | None]:  # fmt: skip
-    # (cache_policy: Any, not CachePolicy: ray's typed .remote() overloads stop at 7 typed parameters)
     """One trial on a Ray worker: (row, None) when it wrote its trial folder into the driver's OUT (the worker sees
     the driver's marker file there), else (row, the folder as a .tar.gz) for the driver to unpack."""
+    # (cache_policy: Any, not CachePolicy: ray's typed .remote() overloads stop at 7 typed parameters)
     _share_cores(1)  # the task reserved one CPU (num_cpus=1)
     _use_cache_policy(cache_policy)
     shared = os.path.exists(marker)
