@@ -12,7 +12,7 @@ from collections.abc import Callable
 
 import pytest
 from pymavlink.dialects.v20 import common as mavlink2
-from sitl_process import MavlinkPeer, SitlProcess
+from sitl_process import MavlinkPeer, SitlProcess, free_udp_ports
 
 pytestmark = pytest.mark.slow
 
@@ -119,3 +119,67 @@ def test_mavsdk_follow_me(sitl: SitlProcess, peer_factory: Callable[[int], Mavli
     assert result["height"] == pytest.approx(10.0, abs=0.5)
     hb = peer.wait("HEARTBEAT", lambda m: m.get_srcComponent() == 1, 3.0, what="a heartbeat")
     assert hb.custom_mode != MODE_FOLLOW
+
+
+def test_mavsdk_follow_me_with_the_camera_component_on(
+    sitl_factory: Callable[..., SitlProcess], peer_factory: Callable[[int], MavlinkPeer]
+) -> None:
+    """With video on, viva-sitl is two components (autopilot 1, camera 100). MAVSDK's Follow Me plugin takes the mode
+    from whichever HEARTBEAT came last, so a camera heartbeat sent after the autopilot's made every
+    set_target_location() answer NOT_ACTIVE (follow_me_example.py failed on the default `viva-sitl run`). Every call
+    must be accepted and the vehicle must move toward the target."""
+    from mavsdk.asyncio import ComponentType, Configuration, Mavsdk
+    from mavsdk.asyncio.plugins.action import ActionAsync
+    from mavsdk.asyncio.plugins.follow_me import Config, FollowMeAsync, TargetLocation
+    from mavsdk.asyncio.plugins.telemetry import FlightMode, TelemetryAsync
+
+    (video_port,) = free_udp_ports(1)
+    sitl = sitl_factory(video_port=video_port)
+    peer = peer_factory(sitl.ports.gcs)
+    peer.wait_autopilot()
+    peer.wait("HEARTBEAT", lambda m: m.get_srcComponent() == 100, 10.0, what="the camera's heartbeat")
+
+    async def scenario() -> tuple[int, float]:
+        async with Mavsdk(Configuration.create_with_component_type(ComponentType.GROUND_STATION)) as mavsdk:
+            await mavsdk.add_any_connection(sitl.ports.mavsdk_url)
+            system = await mavsdk.first_autopilot(timeout_s=15.0)
+            assert system is not None, "no autopilot discovered"
+            action, telemetry, follow = ActionAsync(system), TelemetryAsync(system), FollowMeAsync(system)
+            async with asyncio.timeout(30):
+                async for health in telemetry.subscribe_health():
+                    if health.is_global_position_ok and health.is_home_position_ok:
+                        break
+            home = await anext(aiter(telemetry.subscribe_home()))
+            await follow.set_config(Config(8.0, 5.0, 0.1, Config.FollowAltitudeMode.CONSTANT, 8.0, 180.0))
+            await action.arm()
+            await action.takeoff()
+            async with asyncio.timeout(60):
+                async for position in telemetry.subscribe_position():
+                    if position.relative_altitude_m > 2.0:
+                        break
+            await follow.start()
+            async with asyncio.timeout(10):
+                async for mode in telemetry.subscribe_flight_mode():
+                    if mode == FlightMode.FOLLOW_ME:
+                        break
+            lat, lon = offset(home.latitude_deg, home.longitude_deg, 25.0, 0.0)
+            target = TargetLocation(lat, lon, home.absolute_altitude_m, 0.0, 0.0, 0.0)
+            accepted = 0
+            async with asyncio.timeout(60):
+                while True:  # 12 calls spread over several heartbeats of both components, then until it moved
+                    # raises FollowMeError(NOT_ACTIVE) with the old heartbeat order
+                    await follow.set_target_location(target)
+                    accepted += 1
+                    pos = await anext(aiter(telemetry.subscribe_position()))
+                    ne = ne_of(home.latitude_deg, home.longitude_deg, pos.latitude_deg, pos.longitude_deg)
+                    north = ne[0]
+                    if accepted >= 12 and north > 5.0:
+                        break
+                    await asyncio.sleep(0.3)
+            await follow.stop()
+            await action.land()
+            return accepted, north
+
+    accepted, north = asyncio.run(scenario())
+    assert accepted >= 12
+    assert north > 5.0

@@ -174,9 +174,12 @@ class Schedule:
 
     def send_heartbeats(self) -> None:
         try:
-            self.links.broadcast(self.telemetry.heartbeat())
+            # the camera's first, the autopilot's last: MAVSDK's Follow Me plugin takes the mode from whichever
+            # component's HEARTBEAT came last (a camera's base_mode 0 reads as "not following"), so the autopilot's
+            # must be the latest one in every tick or set_target_location() answers NOT_ACTIVE
             if self.camera is not None:
                 self.links.broadcast(self.camera.heartbeat(), Component.CAMERA)
+            self.links.broadcast(self.telemetry.heartbeat())
         except Exception:
             log.exception("heartbeat failed")
             self.stats.handler_errors += 1
