@@ -54,6 +54,7 @@ from viva_sitl.evaluation.scoring import ScoreRow, score_trial
 from viva_sitl.evaluation.session import TRIAL_PREFIX, write_scenario_file
 from viva_sitl.evaluation.spec import Scenario, TrialSpec
 from viva_sitl.footage import autocache
+from viva_sitl.footage.tiles.settings import process_settings
 
 READY_PREFIX = "viva-sitl ready"
 START_TIMEOUT_S = 60.0
@@ -213,7 +214,10 @@ def run_external_trial(
         "grpc_port": str(grpc_port), "python": sys.executable,
     }  # fmt: skip
     pcmd = pilot_command(command, values) if command is not None else None
-    env = dict(os.environ)
+    # this process's tile settings (a campaign worker's: an argument, not its environment) reach the `viva-sitl run`
+    # child as the documented variables, which it reads on its top floor
+    env = {**os.environ, **process_settings().to_environ()}
+    sitl_env = dict(env)
     env.update({f"VIVA_SITL_{k.upper()}": v for k, v in values.items() if k != "python"})
     env["PYTHONUNBUFFERED"] = "1"
     limit = wall_limit_s if wall_limit_s is not None else trial_wall_limit_s(spec)
@@ -229,7 +233,7 @@ def run_external_trial(
     plog_path = trial_dir / "pilot.log" if pcmd is not None else Path(os.devnull)
     with (trial_dir / "sitl.log").open("wb") as slog, plog_path.open("wb") as plog:
         try:
-            sitl = _start(sitl_cmd)
+            sitl = _start(sitl_cmd, env=sitl_env)
             spump = _Pump(sitl.stdout, slog, (READY_PREFIX, TRIAL_PREFIX))
             spump.start()
             t_start = time.monotonic()
