@@ -48,6 +48,7 @@ from pathlib import Path
 from typing import IO, Any
 
 from viva_sitl.evaluation.ends import TrialEnd
+from viva_sitl.evaluation.events import EventKind
 from viva_sitl.evaluation.monitor import TrialLog
 from viva_sitl.evaluation.runner import limits_of, world_of
 from viva_sitl.evaluation.scoring import ScoreRow, score_trial
@@ -326,12 +327,17 @@ def run_external_trial(
         log.end, log.end_detail = end_override
         if log.end == TrialEnd.ABORTED:  # the vehicle logged its stop; say why it stopped
             log.events.append(
-                {"t_s": log.end_t_s, "kind": "end", "text": f"aborted: {log.end_detail}", "severity": 4}
+                {
+                    "t_s": log.end_t_s,
+                    "kind": EventKind.END,
+                    "text": f"aborted: {log.end_detail}",
+                    "severity": 4,
+                }
             )
     if pilot_note and log.end not in (TrialEnd.LANDED, TrialEnd.PILOT_ERROR):
         log.end_detail = f"{log.end_detail}; {pilot_note}"
     if pilot_note:
-        log.events.append({"t_s": log.end_t_s, "kind": "pilot", "text": pilot_note, "severity": 6})
+        log.events.append({"t_s": log.end_t_s, "kind": EventKind.PILOT, "text": pilot_note, "severity": 6})
     log.write(trial_dir)
     row = score_trial(scenario, log, world_of(scenario.footage), spec)
     add_timing_columns(row, spec.timing, log.timing)
