@@ -104,6 +104,15 @@ def apply_tile_cache(ap: argparse.ArgumentParser, args: argparse.Namespace) -> N
     if not (math.isfinite(args.tile_cache_mb) and args.tile_cache_mb > 0):
         ap.error("--tile-cache-mb must be a number > 0")
     os.environ["VIVA_SITL_TILE_CACHE_MB"] = f"{args.tile_cache_mb:g}"
+    apply_tile_environment()
+
+
+def apply_tile_environment() -> None:
+    """This process's tile settings from its $VIVA_SITL_TILE_* (the footage layer reads no environment: a bench is
+    the top floor; its children read the variables themselves, a campaign's workers get them as an argument)."""
+    from viva_sitl.footage.tiles import TileSettings, set_process_settings
+
+    set_process_settings(TileSettings.from_environ(os.environ))
 
 
 def make_clip(

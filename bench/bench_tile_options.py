@@ -211,6 +211,7 @@ def main() -> int:
     args = ap.parse_args()
     core.apply_tile_cache(ap, args)
     os.environ["VIVA_SITL_TILE_DECODE_THREADS"] = "1"
+    core.apply_tile_environment()
     import cv2
 
     cv2.setNumThreads(1)

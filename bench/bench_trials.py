@@ -19,7 +19,7 @@ One trial = a 60 s (sim) emergency landing: air start at 30 m over the clip, "la
 Variants of ours (--variants): "video" flies over the H.264 clip itself; "tiles" over its `footage ingest --tiles`
 cache (jpeg q95, bench_tiles.make_tiles; a trial's footage may be any tile cache folder); "tiles-raw" over its raw
 (uncompressed, lossless: renders bit-identical to the video's) tile cache.
-Tile LRU (--tile-cache-mb, default 2 MiB, set as $VIVA_SITL_TILE_CACHE_MB for the pool's workers): the bench clip
+Tile LRU (--tile-cache-mb, default 2 MiB, this process's tile settings, handed to the pool's workers): the bench clip
 is 60 frames (2 s) and loops ~15 times in a trial; with the library's default 256 MiB cap every tile under the views
 is decoded once and then served from the LRU on every later loop, which a real 60 s clip (1800 distinct frames)
 never gets. 2 MiB (~10 tiles) keeps nothing from one frame to the next, so every frame is decoded as over a long

@@ -1,13 +1,18 @@
-"""Tile cache settings are arguments (`TileSettings`): the tile library never reads the environment itself; the
-documented $VIVA_SITL_TILE_* variables are parsed from a mapping, and read from the process only where no settings
-are given (`open_footage`). Real generated clips, real tile caches, real automatic cache; no mocks."""
+"""Tile cache settings are arguments (`TileSettings`): the footage layer never reads the environment; the
+documented $VIVA_SITL_TILE_* variables are parsed from a mapping by the top floor (the commands, the gym, the
+benches), which makes them the process's settings; a campaign hands them to its workers as an argument. Real
+generated clips, real tile caches, real automatic cache, real worker processes; no mocks."""
 
 from __future__ import annotations
 
+import ast
+import os
 from pathlib import Path
 
 import pytest
 
+from viva_sitl.evaluation.campaign import run_campaign
+from viva_sitl.evaluation.spec import spec_from_dict
 from viva_sitl.footage import FootageError, autocache, open_footage
 from viva_sitl.footage.autocache import CachePolicy
 from viva_sitl.footage.ingest import ingest_tiles
@@ -20,9 +25,12 @@ from viva_sitl.footage.tiles import (
     TileCache,
     TileSettings,
     TileSource,
+    process_settings,
+    set_process_settings,
 )
 
 W, H = 320, 240
+CORES = os.cpu_count() or 1
 
 
 @pytest.fixture(scope="module")
@@ -44,7 +52,8 @@ def jpeg_cache(clip: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 def test_settings_from_a_mapping() -> None:
-    assert TileSettings.from_environ({}) == TileSettings(DEFAULT_CACHE_BYTES, DEFAULT_DECODE_THREADS)
+    assert TileSettings.from_environ({}) == TileSettings(DEFAULT_CACHE_BYTES, None)
+    assert TileSettings.from_environ({}).threads == DEFAULT_DECODE_THREADS  # not chosen: the default
     assert TileSettings.from_environ({CACHE_ENV: " ", DECODE_THREADS_ENV: ""}) == TileSettings()
     got = TileSettings.from_environ({CACHE_ENV: "0.5", DECODE_THREADS_ENV: "1", "UNRELATED": "x"})
     assert got == TileSettings(cache_bytes=1 << 19, decode_threads=1)
@@ -52,6 +61,17 @@ def test_settings_from_a_mapping() -> None:
         with pytest.raises(FootageError, match=f"\\${var}={bad!r}: give ") as err:
             TileSettings.from_environ({var: bad})
         assert "\n" not in str(err.value)
+    # handed to a child process as the documented variables, read back exactly; the chosen threads win over a share
+    for s in (
+        TileSettings(),
+        TileSettings(cache_bytes=3 << 20, decode_threads=1),
+        TileSettings(cache_bytes=12345),
+    ):
+        assert TileSettings.from_environ(s.to_environ()) == s
+    assert (
+        TileSettings().or_threads(3).threads == 3
+        and TileSettings(decode_threads=2).or_threads(3).threads == 2
+    )
 
 
 def test_the_library_takes_its_settings_as_arguments(
@@ -77,26 +97,128 @@ def test_the_library_takes_its_settings_as_arguments(
         assert src.frame(1).shape == (H, W, 3)
     finally:
         src.close()
-    with pytest.raises(FootageError, match=CACHE_ENV):  # no settings given: the process's environment is read
-        open_footage(str(jpeg_cache))
+    before = process_settings()
+    try:  # no settings given: the process's (set by the top floor), never the environment
+        src = open_footage(str(jpeg_cache))
+        try:
+            assert isinstance(src, TileSource) and src.cache.cache_bytes == DEFAULT_CACHE_BYTES
+        finally:
+            src.close()
+        set_process_settings(TileSettings(cache_bytes=5 << 20, decode_threads=1))
+        src = open_footage(str(jpeg_cache))
+        try:
+            assert (
+                isinstance(src, TileSource) and src.cache.cache_bytes == 5 << 20 and src.cache._pool is None
+            )
+        finally:
+            src.close()
+    finally:
+        set_process_settings(before)
 
 
-def test_a_bad_environment_fails_before_the_automatic_cache_is_checked(
+def test_a_bad_environment_does_not_reach_the_automatic_cache(
     clip: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
 ) -> None:
-    """A bad $VIVA_SITL_TILE_CACHE_MB is one error raised before the automatic cache is looked at: the valid cache
-    is neither reported corrupt nor rebuilt (its checks read it with their own settings)."""
+    """A bad $VIVA_SITL_TILE_CACHE_MB is refused by the top floor (one line, before anything is opened: see
+    tests/test_tiles.py and tests/test_trials.py); `open_footage` does not read it: the valid automatic cache opens
+    with the process's settings, neither reported corrupt nor rebuilt."""
     pol = CachePolicy(root=tmp_path / "auto", min_pixels=1, show_progress=False)
     open_footage(str(clip), cache=pol).close()  # built
     (entry,) = autocache.list_caches(pol.directory())
     packs = sorted((entry.folder / "tiles").glob("pack-*.bin"))
     stamp = [p.stat().st_mtime_ns for p in packs]
     monkeypatch.setenv(CACHE_ENV, "lots")
-    with pytest.raises(FootageError, match=CACHE_ENV) as err:
-        open_footage(str(clip), cache=pol)
-    assert "\n" not in str(err.value)
+    with open_footage(str(clip), cache=pol) as src:
+        assert isinstance(src, TileSource) and src.cache.cache_bytes == process_settings().cache_bytes
     assert "corrupt" not in caplog.text
     assert [p.stat().st_mtime_ns for p in packs] == stamp  # not rebuilt
     with open_footage(str(clip), cache=pol, tiles=TileSettings(decode_threads=1)) as src:
         assert isinstance(src, TileSource) and src.cache._pool is None
     assert [p.stat().st_mtime_ns for p in packs] == stamp
+
+
+# the process's own environment may be read (a documented path lookup, not a tile setting) only here
+ENVIRON_READERS = {
+    "paths.py"
+}  # $VIVA_SITL_SHARED_DIR and $XDG_CACHE_HOME: where footage lives, not how it is read
+
+
+def _reads_environment(tree: ast.AST) -> list[int]:
+    """Lines of `os.environ` / `os.getenv` / `environ` / `getenv` (imported from os) uses in a module."""
+    names = ("environ", "getenv", "environb", "getenvb")
+    attrs = [n.lineno for n in ast.walk(tree) if isinstance(n, ast.Attribute) and n.attr in names]
+    imports = [
+        n.lineno
+        for n in ast.walk(tree)
+        if isinstance(n, ast.ImportFrom) and n.module == "os" and any(a.name in names for a in n.names)
+    ]
+    return attrs + imports
+
+
+def test_the_footage_layer_reads_no_environment_for_tiles() -> None:
+    """No module under viva_sitl/footage reads the process's environment (paths.py's documented shared-dir and
+    XDG cache-dir lookups aside): the tile settings come from arguments or the process's settings, which the
+    top floor sets."""
+    root = Path(__file__).resolve().parents[1] / "viva_sitl" / "footage"
+    files = sorted(root.rglob("*.py"))
+    assert len(files) > 10
+    found = {
+        str(f.relative_to(root)): lines
+        for f in files
+        if f.name not in ENVIRON_READERS
+        and (lines := _reads_environment(ast.parse(f.read_text(encoding="utf-8"))))
+    }
+    assert found == {}, f"os.environ read in the footage layer: {found}"
+    for name in ENVIRON_READERS:  # the exception reads no tile variable either
+        text = (root / name).read_text(encoding="utf-8")
+        assert CACHE_ENV not in text and DECODE_THREADS_ENV not in text and "VIVA_SITL_TILE" not in text
+
+
+class SettingsProbe:
+    """An in-process pilot that ends its trial at its first step with the tile settings its worker reads with."""
+
+    name, control_hz, frame_hz, uses_ground_truth = "settings-probe", 5.0, 0.0, False
+
+    def reset(self, scenario: object, truth: object) -> None:
+        pass
+
+    def act(self, obs, ctl):  # type: ignore[no-untyped-def]
+        raise RuntimeError(f"worker tiles {process_settings()!r}; env {os.environ.get(DECODE_THREADS_ENV)!r}")
+
+
+@pytest.mark.parametrize(
+    ("given", "expected"),
+    [
+        (
+            TileSettings(cache_bytes=3 << 20, decode_threads=3),
+            TileSettings(cache_bytes=3 << 20, decode_threads=3),
+        ),
+        # threads not chosen: the worker's share of the cores (2 jobs)
+        (
+            TileSettings(cache_bytes=5 << 20),
+            TileSettings(cache_bytes=5 << 20, decode_threads=max(1, CORES // 2)),
+        ),
+    ],
+)
+def test_campaign_workers_get_the_tile_settings_as_an_argument(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, given: TileSettings, expected: TileSettings
+) -> None:
+    """A campaign hands its TileSettings to its (spawned) workers as an argument: they read with them although
+    neither variable is set, in the parent or the worker."""
+    monkeypatch.delenv(CACHE_ENV, raising=False)
+    monkeypatch.delenv(DECODE_THREADS_ENV, raising=False)
+    spec = spec_from_dict(
+        {
+            "trials": {"n": 2, "seed": 1, "timeout_s": 5.0},
+            "scenario": {"footage": "synthetic", "start": "air"},
+        },
+        "probe",
+    )
+    camp = run_campaign(
+        spec, "tests.test_tile_settings:SettingsProbe", tmp_path, jobs=2, progress=False, tiles=given
+    )
+    rows = camp.ordered_rows()
+    assert len(rows) == 2
+    for row in rows:
+        assert row["end"] == "pilot_error", row
+        assert f"worker tiles {expected!r}; env None" in str(row["end_detail"]), row["end_detail"]

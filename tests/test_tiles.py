@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import shutil
 from collections.abc import Iterator
 from dataclasses import replace
@@ -27,10 +28,13 @@ from viva_sitl.footage.tiles import (
     INDEX_DTYPE,
     INDEX_DTYPE_V1,
     YUVZ_COARSE_MIN_PSNR_DB,
+    TileSettings,
     TileSource,
     _decode,
     _encode,
     build_tiles,
+    process_settings,
+    set_process_settings,
     tile_checksum,
 )
 from viva_sitl.sim import Simulator
@@ -215,24 +219,52 @@ def test_tile_source_frames_equal_the_video_and_the_lru_is_capped(
 
 
 def _refused_in_one_line(
-    monkeypatch: pytest.MonkeyPatch, var: str, bad: tuple[str, ...], folder: Path
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+    var: str,
+    bad: tuple[str, ...],
+    folder: Path,
 ) -> None:
-    """Opening `folder` with each bad value of $var is one FootageError line naming the variable."""
+    """`viva-sitl footage info` (the top floor, which reads the variables) with each bad value of $var is one error
+    line naming the variable, exit status 2."""
+    capsys.readouterr()
     for value in bad:
         monkeypatch.setenv(var, value)
-        with pytest.raises(FootageError, match=var) as err:
-            open_footage(str(folder))
-        assert "\n" not in str(err.value)
+        assert footage_main(["info", str(folder)]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and f"${var}={value!r}: give " in err[0], err
     monkeypatch.delenv(var)
 
 
+@pytest.fixture
+def process_tiles() -> Iterator[None]:
+    """The process's tile settings as they were after the test (the top floor sets them)."""
+    before = process_settings()
+    yield
+    set_process_settings(before)
+
+
+def _top_floor() -> None:
+    """What an entry point does: the documented variables, read once, are the process's tile settings."""
+    set_process_settings(TileSettings.from_environ(os.environ))
+
+
 def test_tile_cache_size_from_the_environment(
-    caches: dict[str, Path], monkeypatch: pytest.MonkeyPatch
+    caches: dict[str, Path],
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+    process_tiles: None,
 ) -> None:
-    """$VIVA_SITL_TILE_CACHE_MB caps the decoded-tile LRU of every source opened after it is set (trial workers
-    inherit it), $VIVA_SITL_TILE_DECODE_THREADS sets its decode threads; a bad value is one FootageError naming
-    the variable."""
+    """$VIVA_SITL_TILE_CACHE_MB, read by the top floor, caps the decoded-tile LRU of every source opened after it
+    (trial workers get it as an argument), $VIVA_SITL_TILE_DECODE_THREADS sets its decode threads; a bad value is
+    one error line naming the variable. `open_footage` itself reads no environment."""
     monkeypatch.setenv("VIVA_SITL_TILE_CACHE_MB", "0.5")
+    src = open_footage(str(caches["raw"]))
+    try:  # not read by the footage layer
+        assert isinstance(src, TileSource) and src.cache.cache_bytes == process_settings().cache_bytes
+    finally:
+        src.close()
+    _top_floor()
     src = open_footage(str(caches["raw"]))
     try:
         assert isinstance(src, TileSource)
@@ -245,12 +277,16 @@ def test_tile_cache_size_from_the_environment(
         assert src.cache.tiles_decoded > decoded
     finally:
         src.close()
-    _refused_in_one_line(monkeypatch, "VIVA_SITL_TILE_CACHE_MB", ("0", "-3", "lots", "nan"), caches["raw"])
+    _refused_in_one_line(
+        monkeypatch, capsys, "VIVA_SITL_TILE_CACHE_MB", ("0", "-3", "lots", "nan"), caches["raw"]
+    )
     # decode threads (the trials' pool sets 1 per worker when the workers fill the cores): same frames either way
+    _top_floor()
     pooled = open_footage(str(caches["jpeg"]))
     try:
         assert isinstance(pooled, TileSource) and pooled.cache._pool is not None  # default: 2 threads
         monkeypatch.setenv("VIVA_SITL_TILE_DECODE_THREADS", "1")
+        _top_floor()
         one = open_footage(str(caches["jpeg"]))
         try:
             assert isinstance(one, TileSource) and one.cache._pool is None
@@ -261,7 +297,7 @@ def test_tile_cache_size_from_the_environment(
     finally:
         pooled.close()
     _refused_in_one_line(
-        monkeypatch, "VIVA_SITL_TILE_DECODE_THREADS", ("0", "two", "-1", "1.5"), caches["jpeg"]
+        monkeypatch, capsys, "VIVA_SITL_TILE_DECODE_THREADS", ("0", "two", "-1", "1.5"), caches["jpeg"]
     )
 
 

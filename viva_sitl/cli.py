@@ -6,6 +6,7 @@ import argparse
 import dataclasses
 import logging
 import math
+import os
 import sys
 from pathlib import Path
 
@@ -237,6 +238,14 @@ def _cmd_render(args: argparse.Namespace) -> int:
     return 0
 
 
+def apply_tile_environment() -> None:
+    """The process's tile settings from the documented $VIVA_SITL_TILE_CACHE_MB / $VIVA_SITL_TILE_DECODE_THREADS,
+    read here on the top floor (the footage layer reads no environment); a bad value is one FootageError line."""
+    from viva_sitl.footage.tiles import TileSettings, set_process_settings
+
+    set_process_settings(TileSettings.from_environ(os.environ))
+
+
 def apply_cache_args(args: argparse.Namespace) -> None:
     from viva_sitl.footage.autocache import CachePolicy, set_policy
 
@@ -275,6 +284,8 @@ def main(argv: list[str] | None = None) -> int:
             pass
 
     try:
+        if args.command in ("render", "run", "replay"):
+            apply_tile_environment()
         if args.command in ("render", "run"):
             apply_cache_args(args)
         if args.command == "render":

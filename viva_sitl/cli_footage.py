@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
 import sys
 import time
 from pathlib import Path
@@ -352,6 +353,9 @@ def footage_main(argv: list[str]) -> int:
     shared_dir = args.shared_dir or default_shared_dir()
     cache_dir = args.cache_dir or default_cache_dir()
     try:
+        if args.cmd in ("info", "ingest", "show", "annotate"):  # the commands that open footage
+            # the top floor reads the documented $VIVA_SITL_TILE_* (the footage layer reads no environment)
+            tiles.set_process_settings(tiles.TileSettings.from_environ(os.environ))
         if args.cmd == "list":
             return _cmd_list(config_dir, shared_dir, cache_dir)
         if args.cmd == "info":

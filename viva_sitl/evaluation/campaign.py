@@ -63,6 +63,7 @@ from viva_sitl.evaluation.results import (
 from viva_sitl.evaluation.scoring import COLUMNS, ScoreRow, score_trial
 from viva_sitl.evaluation.spec import Scenario, TrialSpec, draw_scenarios
 from viva_sitl.footage import autocache
+from viva_sitl.footage.tiles.settings import TileSettings, process_settings, set_process_settings
 
 
 def default_wall_limit_s(spec: TrialSpec, pilot: str) -> float:
@@ -114,12 +115,12 @@ def failed_row(spec: TrialSpec, scenario: Scenario, end: TrialEnd, detail: str) 
 # ----------------------------------------------------------------------------------------- local pool
 
 
-def _share_cores(threads: int) -> None:
-    """A trial worker's footage decode threads: the cores left to it. With as many workers as cores, a tile
-    cache's decode pool only adds hand-offs (measured: 6-trial jpeg-tile campaigns 8-10 % faster with 1)."""
-    from viva_sitl.footage.tiles import DECODE_THREADS_ENV
-
-    os.environ.setdefault(DECODE_THREADS_ENV, str(threads))  # the user's own setting wins
+def _use_tile_settings(tiles: TileSettings, threads: int) -> None:
+    """A worker (spawned: no state of the parent's) reads tile caches with the campaign's settings (an argument,
+    not its environment), decoding on the cores left to it unless the user chose the threads. With as many workers
+    as cores, a tile cache's decode pool only adds hand-offs (measured: 6-trial jpeg-tile campaigns 8-10 % faster
+    with 1)."""
+    set_process_settings(tiles.or_threads(threads))
 
 
 def _use_cache_policy(cache_policy: autocache.CachePolicy | None) -> None:
@@ -130,11 +131,15 @@ def _use_cache_policy(cache_policy: autocache.CachePolicy | None) -> None:
 
 
 def _ray_one(spec: TrialSpec, scenario: Scenario, pilot: str, out_dir: str, slot: int, video: bool,
-             driver_cwd: str, marker: str, cache_policy: Any = None) -> tuple[Row, bytes | None]:  # fmt: skip
+             driver_cwd: str, marker: str, cache_policy: Any = None,
+             tiles: Any = None) -> tuple[Row, bytes | None]:  # fmt: skip
     """One trial on a Ray worker: (row, None) when it wrote its trial folder into the driver's OUT (the worker sees
     the driver's marker file there), else (row, the folder as a .tar.gz) for the driver to unpack."""
-    # (cache_policy: Any, not CachePolicy: ray's typed .remote() overloads stop at 7 typed parameters)
-    _share_cores(1)  # the task reserved one CPU (num_cpus=1)
+    # (cache_policy, tiles: Any, not CachePolicy / TileSettings: ray's typed .remote() overloads stop at 7 typed
+    # parameters)
+    _use_tile_settings(
+        tiles if tiles is not None else TileSettings(), 1
+    )  # the task reserved one CPU (num_cpus=1)
     _use_cache_policy(cache_policy)
     shared = os.path.exists(marker)
     if shared and os.path.isdir(driver_cwd):
@@ -168,9 +173,10 @@ def _unpack_dir(data: bytes, folder: Path) -> None:
 
 
 def _worker(slot: int, conn: Connection, results: Any, spec: TrialSpec, pilot: str, out_dir: str, video: bool,
-            threads: int, cache_policy: autocache.CachePolicy | None = None) -> None:  # fmt: skip
+            threads: int, cache_policy: autocache.CachePolicy | None = None,
+            tiles: TileSettings | None = None) -> None:  # fmt: skip
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent handles Ctrl-C and stops us with SIGTERM
-    _share_cores(threads)
+    _use_tile_settings(tiles if tiles is not None else TileSettings(), threads)
     _use_cache_policy(cache_policy)
 
     def _term(*_: object) -> None:
@@ -198,7 +204,7 @@ class _Slot:
 
 
 def _local(spec: TrialSpec, pilot: str, todo: list[Scenario], out_dir: Path, jobs: int, video: bool,
-           wall_limit_s: float) -> Iterator[tuple[int, Row]]:  # fmt: skip
+           wall_limit_s: float, tiles: TileSettings) -> Iterator[tuple[int, Row]]:  # fmt: skip
     ctx = mp.get_context("spawn")
     results = ctx.Queue()
     queue = list(todo)
@@ -209,7 +215,7 @@ def _local(spec: TrialSpec, pilot: str, todo: list[Scenario], out_dir: Path, job
     def start(slot: int) -> _Slot:
         parent, child = ctx.Pipe()
         p = ctx.Process(target=_worker, args=(slot, child, results, spec, pilot, str(out_dir), video, threads,
-                                              autocache.policy()),
+                                              autocache.policy(), tiles),
                         name=f"viva-trial-{slot}", daemon=True)  # fmt: skip
         p.start()
         child.close()
@@ -291,7 +297,7 @@ def _ray_init(address: str | None, out_abs: Path) -> bool:
 
 
 def _ray(spec: TrialSpec, pilot: str, todo: list[Scenario], out_dir: Path, jobs: int, video: bool,
-         wall_limit_s: float, started: bool) -> Iterator[tuple[int, Row]]:  # fmt: skip
+         wall_limit_s: float, started: bool, tiles: TileSettings) -> Iterator[tuple[int, Row]]:  # fmt: skip
     import ray
 
     out_abs = out_dir.resolve()  # the driver's OUT, whatever directory the workers run in
@@ -307,7 +313,7 @@ def _ray(spec: TrialSpec, pilot: str, todo: list[Scenario], out_dir: Path, jobs:
             while queue and len(running) < jobs:
                 sc = queue.pop(0)
                 ref = task.remote(spec, sc, pilot, str(out_abs), slot % max(jobs, 1), video, os.getcwd(),
-                                  str(marker), autocache.policy())  # fmt: skip
+                                  str(marker), autocache.policy(), tiles)  # fmt: skip
                 slot += 1
                 running[ref] = (sc.index, time.monotonic())
             done, _ = ray.wait(list(running), num_returns=1, timeout=0.5)
@@ -483,21 +489,23 @@ def run_campaign(
     progress: bool = True,
     wall_limit_s: float | None = None,
     on_row: Callable[[Row], None] | None = None,
+    tiles: TileSettings | None = None,
 ) -> Campaign:
     """Run (or resume) a campaign and write results.json / results.csv / report.html to out_dir. Ctrl-C keeps the
     finished trials (reports written for them) and re-raises KeyboardInterrupt after that.
 
     An out_dir that holds results is refused (ValueError, one line) unless `resume` (the same spec, seed, n, pilot
     and timing: only the missing trials run) or `force` (what it held is removed first). n / seed override the
-    spec's; the campaign's spec (and results.json) says what was drawn."""
+    spec's; the campaign's spec (and results.json) says what was drawn. `tiles`: how the workers read tile caches
+    (None: this process's, `tiles.set_process_settings`; decode threads not chosen: the cores each worker is left),
+    handed to them as an argument."""
     from viva_sitl.evaluation.report import write_reports
-    from viva_sitl.footage.tiles import check_tile_environment
 
     pilot = pilot or spec.pilot
     if is_inprocess(pilot):
         _importable_cwd()
         make_pilot(pilot)  # a pilot that cannot be made fails here with one line, not once per trial
-    check_tile_environment()  # so does a bad $VIVA_SITL_TILE_*, which every worker would read
+    tile_settings = tiles if tiles is not None else process_settings()
     out = Path(out_dir)
     spec = dataclasses.replace(
         spec, n=spec.n if n is None else n, seed=spec.seed if seed is None else seed, pilot=pilot
@@ -553,9 +561,9 @@ def run_campaign(
 
     preload_if_a_core_is_idle()
     if backend == "local":
-        gen: Iterator[tuple[int, Row]] = _local(spec, pilot, todo, out, jobs, video, limit)
+        gen: Iterator[tuple[int, Row]] = _local(spec, pilot, todo, out, jobs, video, limit, tile_settings)
     else:
-        gen = _ray(spec, pilot, todo, out, jobs, video, limit, ray_started)
+        gen = _ray(spec, pilot, todo, out, jobs, video, limit, ray_started, tile_settings)
     try:
         for idx, row in gen:
             left -= 1

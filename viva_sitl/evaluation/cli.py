@@ -210,6 +210,12 @@ def trials_main(argv: list[str]) -> int:
 
     args = build_parser().parse_args(argv)
     try:
+        if args.cmd in ("run", "fly", "report", "suite", "search"):  # the commands that open footage
+            from viva_sitl.footage.tiles import TileSettings, set_process_settings
+
+            # the top floor reads the documented $VIVA_SITL_TILE_* once (a bad value: one line, before any trial);
+            # a campaign hands the settings to its workers as an argument
+            set_process_settings(TileSettings.from_environ(os.environ))
         if args.cmd == "run":
             return _run(args)
         if args.cmd == "fly":

@@ -43,6 +43,7 @@ from viva_sitl.autopilot import Severity
 from viva_sitl.config import SimConfig
 from viva_sitl.dynamics import EavCommand
 from viva_sitl.evaluation.ends import TrialEnd
+from viva_sitl.evaluation.events import EventKind
 from viva_sitl.evaluation.monitor import INJECTED_PREFIX, LAND_NOW_TEXT, Limits, TrialLog, TrialMonitor
 from viva_sitl.evaluation.scoring import ScoreRow, score_trial
 from viva_sitl.evaluation.spec import Scenario, TrialSpec
@@ -188,9 +189,9 @@ class Episode:
         while self._announced < len(ev):  # land-now and injected failures: told as PX4 would tell a pilot
             e = ev[self._announced]
             self._announced += 1
-            if e["kind"] in ("land_now", "failure"):
+            if e["kind"] in (EventKind.LAND_NOW, EventKind.FAILURE):
                 ap.announce(Severity(e["severity"]), e["text"])
-            if e["kind"] == "land_now":
+            if e["kind"] == EventKind.LAND_NOW:
                 self._repeat_s = e["t_s"] + LAND_NOW_REPEAT_S
                 self._awaiting = (ap.commands, ap.mode.name)
         if self._awaiting is not None and m.log.end is None:
@@ -201,7 +202,7 @@ class Episode:
                 m.log.reaction_t_s = round(t, 6)
                 m.event(
                     t,
-                    "reaction",
+                    EventKind.REACTION,
                     f"the pilot's first command after land now: {t - (m.log.land_now_t_s or 0.0):.3f} s later",
                 )
             elif ap.mode.name != mode:

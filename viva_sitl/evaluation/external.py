@@ -48,12 +48,14 @@ from pathlib import Path
 from typing import IO, Any
 
 from viva_sitl.evaluation.ends import TrialEnd
+from viva_sitl.evaluation.events import EventKind
 from viva_sitl.evaluation.monitor import TrialLog
 from viva_sitl.evaluation.runner import limits_of, world_of
 from viva_sitl.evaluation.scoring import ScoreRow, score_trial
 from viva_sitl.evaluation.session import TRIAL_PREFIX, write_scenario_file
 from viva_sitl.evaluation.spec import Scenario, TrialSpec
 from viva_sitl.footage import autocache
+from viva_sitl.footage.tiles.settings import process_settings
 
 READY_PREFIX = "viva-sitl ready"
 START_TIMEOUT_S = 60.0
@@ -213,7 +215,10 @@ def run_external_trial(
         "grpc_port": str(grpc_port), "python": sys.executable,
     }  # fmt: skip
     pcmd = pilot_command(command, values) if command is not None else None
-    env = dict(os.environ)
+    # this process's tile settings (a campaign worker's: an argument, not its environment) reach the `viva-sitl run`
+    # child as the documented variables, which it reads on its top floor
+    env = {**os.environ, **process_settings().to_environ()}
+    sitl_env = dict(env)
     env.update({f"VIVA_SITL_{k.upper()}": v for k, v in values.items() if k != "python"})
     env["PYTHONUNBUFFERED"] = "1"
     limit = wall_limit_s if wall_limit_s is not None else trial_wall_limit_s(spec)
@@ -229,7 +234,7 @@ def run_external_trial(
     plog_path = trial_dir / "pilot.log" if pcmd is not None else Path(os.devnull)
     with (trial_dir / "sitl.log").open("wb") as slog, plog_path.open("wb") as plog:
         try:
-            sitl = _start(sitl_cmd)
+            sitl = _start(sitl_cmd, env=sitl_env)
             spump = _Pump(sitl.stdout, slog, (READY_PREFIX, TRIAL_PREFIX))
             spump.start()
             t_start = time.monotonic()
@@ -322,12 +327,17 @@ def run_external_trial(
         log.end, log.end_detail = end_override
         if log.end == TrialEnd.ABORTED:  # the vehicle logged its stop; say why it stopped
             log.events.append(
-                {"t_s": log.end_t_s, "kind": "end", "text": f"aborted: {log.end_detail}", "severity": 4}
+                {
+                    "t_s": log.end_t_s,
+                    "kind": EventKind.END,
+                    "text": f"aborted: {log.end_detail}",
+                    "severity": 4,
+                }
             )
     if pilot_note and log.end not in (TrialEnd.LANDED, TrialEnd.PILOT_ERROR):
         log.end_detail = f"{log.end_detail}; {pilot_note}"
     if pilot_note:
-        log.events.append({"t_s": log.end_t_s, "kind": "pilot", "text": pilot_note, "severity": 6})
+        log.events.append({"t_s": log.end_t_s, "kind": EventKind.PILOT, "text": pilot_note, "severity": 6})
     log.write(trial_dir)
     row = score_trial(scenario, log, world_of(scenario.footage), spec)
     add_timing_columns(row, spec.timing, log.timing)

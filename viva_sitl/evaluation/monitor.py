@@ -29,6 +29,7 @@ from viva_sitl.autopilot import Autopilot, ParamStore, Severity
 from viva_sitl.autopilot.failures import FailureType, FailureUnit
 from viva_sitl.dynamics import EavState
 from viva_sitl.evaluation.ends import TrialEnd
+from viva_sitl.evaluation.events import EventKind
 from viva_sitl.evaluation.spec import Scenario
 
 # The trial log (its own columns, for scoring); `run`'s 30 Hz trajectory.csv (viva_sitl/recording.py, for replay)
@@ -141,6 +142,8 @@ class TrialLog:
                 )
         with (trial_dir / "events.jsonl").open() as f:
             log.events = [json.loads(line) for line in f if line.strip()]
+        for k, e in enumerate(log.events, 1):  # ValueError: not a kind this version writes
+            e["kind"] = EventKind.parse(e.get("kind"), f"events.jsonl event {k}")
         s = json.loads((trial_dir / "end.json").read_text())
         log.end = (
             None if s["end"] is None else TrialEnd(s["end"])
@@ -187,7 +190,7 @@ class TrialMonitor:
     def t_of(self, state: EavState) -> float:
         return float(state.time_s) - self.t0_s
 
-    def event(self, t_s: float, kind: str, text: str, severity: int = int(Severity.INFO)) -> None:
+    def event(self, t_s: float, kind: EventKind, text: str, severity: int = int(Severity.INFO)) -> None:
         e = {"t_s": round(t_s, 6), "kind": kind, "text": text, "severity": severity}
         self.log.events.append(e)
         self.new_events.append(e)
@@ -199,20 +202,20 @@ class TrialMonitor:
         self._flown = not s.landed
         self._armed = v.autopilot.armed
         self._mode = v.autopilot.mode.name
-        self.event(0.0, "start", f"{self.scenario.start} start at N{s.pos_ned_m[0]:.1f} E{s.pos_ned_m[1]:.1f} "
+        self.event(0.0, EventKind.START, f"{self.scenario.start} start at N{s.pos_ned_m[0]:.1f} E{s.pos_ned_m[1]:.1f} "
                    f"alt {-s.pos_ned_m[2]:.1f} m, mode {self._mode}, armed {self._armed}")  # fmt: skip
         self._sample(v, s, 0.0)
 
     def record_autopilot_event(self, t_s: float, severity: int, text: str) -> None:
         """An autopilot STATUSTEXT (its owner pops them: the runner, or the MAVLink endpoint's listener)."""
-        kind = "failsafe" if "ailsafe" in text else "autopilot"
+        kind = EventKind.FAILSAFE if "ailsafe" in text else EventKind.AUTOPILOT
         self.event(t_s, kind, text, severity)
 
     def _apply(self, v: MonitoredVehicle, t: float, kind: str) -> None:
         if kind == "land_now":
             self.land_now = True
             self.log.land_now_t_s = round(t, 6)
-            self.event(t, "land_now", LAND_NOW_TEXT, int(Severity.ALERT))
+            self.event(t, EventKind.LAND_NOW, LAND_NOW_TEXT, int(Severity.ALERT))
             return
         unit, ftype, what = FAILURES[kind]
         # the simulator's own injection: through the autopilot's MAV_CMD_INJECT_FAILURE path, not gated by
@@ -221,10 +224,13 @@ class TrialMonitor:
             float(v.state.time_s), unit, ftype, FAILURE_INSTANCE.get(kind, 0), check_enabled=False
         )
         if out.ok:
-            self.event(t, "failure", f"{INJECTED_PREFIX} {what}", int(Severity.CRITICAL))
+            self.event(t, EventKind.FAILURE, f"{INJECTED_PREFIX} {what}", int(Severity.CRITICAL))
         else:
             self.event(
-                t, "failure", f"{INJECTED_PREFIX} {what} refused: {out.reason}", int(Severity.CRITICAL)
+                t,
+                EventKind.FAILURE,
+                f"{INJECTED_PREFIX} {what} refused: {out.reason}",
+                int(Severity.CRITICAL),
             )
 
     def after_step(self, v: MonitoredVehicle) -> None:
@@ -251,10 +257,10 @@ class TrialMonitor:
             self.log.energy_wh += ap.battery_current_a * self._volts * dt / 3600.0
         mode, armed = ap.mode.name, ap.armed
         if mode != self._mode:
-            self.event(t, "mode", f"mode {self._mode} -> {mode}")
+            self.event(t, EventKind.MODE, f"mode {self._mode} -> {mode}")
             self._mode = mode
         if armed != self._armed:
-            self.event(t, "armed" if armed else "disarmed", "armed" if armed else "disarmed")
+            self.event(t, EventKind.ARMED if armed else EventKind.DISARMED, "armed" if armed else "disarmed")
             self._armed = armed
         if not s.landed:
             self._flown = True
@@ -263,14 +269,14 @@ class TrialMonitor:
             td = Touchdown(t, float(s.pos_ned_m[0]), float(s.pos_ned_m[1]), float(vel[2]),
                            math.hypot(float(vel[0]), float(vel[1])))  # fmt: skip
             self.log.touchdown = td
-            self.event(t, "touchdown", f"touchdown at N{td.north_m:.2f} E{td.east_m:.2f}: vertical "
+            self.event(t, EventKind.TOUCHDOWN, f"touchdown at N{td.north_m:.2f} E{td.east_m:.2f}: vertical "
                        f"{td.vertical_speed_m_s:.2f} m/s, horizontal {td.horizontal_speed_m_s:.2f} m/s")  # fmt: skip
             if math.hypot(td.vertical_speed_m_s, td.horizontal_speed_m_s) > self.limits.crash_speed_m_s:
                 self._end(v, s, t, TrialEnd.CRASH, f"touchdown at {math.hypot(td.vertical_speed_m_s, td.horizontal_speed_m_s):.2f} m/s "
                           f"> crash_speed_m_s {self.limits.crash_speed_m_s:g}")  # fmt: skip
                 return
         elif not s.landed and prev.landed and self.log.touchdown is not None:
-            self.event(t, "liftoff", "lift-off")
+            self.event(t, EventKind.LIFTOFF, "lift-off")
             self.log.touchdown = None  # a touch-and-go is not a landing
         if t >= self._next_log_s:
             self._next_log_s += self._log_period_s
@@ -280,7 +286,7 @@ class TrialMonitor:
             if not self._inside:
                 if self._outside_since is None:
                     self._outside_since = t
-                    self.event(t, "outside", "ground point left the footage")
+                    self.event(t, EventKind.OUTSIDE, "ground point left the footage")
                 elif t - self._outside_since >= self.limits.end_outside_s:
                     self._end(
                         v,
@@ -292,7 +298,7 @@ class TrialMonitor:
                     return
             elif self._outside_since is not None:
                 self._outside_since = None
-                self.event(t, "inside", "ground point back over the footage")
+                self.event(t, EventKind.INSIDE, "ground point back over the footage")
         if not self._inside:
             self.log.outside_s += dt
         if self._flown and s.landed and not armed:
@@ -321,4 +327,4 @@ class TrialMonitor:
     def _end(self, v: MonitoredVehicle, s: EavState, t: float, end: TrialEnd, detail: str) -> None:
         self._sample(v, s, t)
         self.log.end, self.log.end_detail, self.log.end_t_s = end, detail, t
-        self.event(t, "end", f"{end}: {detail}")
+        self.event(t, EventKind.END, f"{end}: {detail}")

@@ -64,6 +64,7 @@ from typing import Any, Literal, TypedDict
 import numpy as np
 
 from viva_sitl.evaluation.ends import TrialEnd
+from viva_sitl.evaluation.events import EventKind
 from viva_sitl.evaluation.monitor import TRAJECTORY_COLUMNS, TrialLog
 from viva_sitl.evaluation.spec import Criterion, Scenario, TrialSpec
 from viva_sitl.world import ALL, PEOPLE, VEHICLES, WorldModel
@@ -163,7 +164,7 @@ def _dist(world: WorldModel, n: np.ndarray, e: np.ndarray, t: np.ndarray, classe
 
 def score_trial(scenario: Scenario, log: TrialLog, world: WorldModel | None, spec: TrialSpec) -> ScoreRow:
     sc = scenario
-    fs = [e["text"] for e in log.events if e["kind"] == "failsafe"]
+    fs = [e["text"] for e in log.events if e["kind"] == EventKind.FAILSAFE]
     gt_obj = world is not None and world.has_objects
     gt_risk = world is not None and world.has_risk_map
     row = ScoreRow(

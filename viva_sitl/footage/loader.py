@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import logging
 import math
-from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -38,7 +37,7 @@ from viva_sitl.footage.paths import default_cache_dir, default_config_dir, defau
 from viva_sitl.footage.source import FootageSource, StillSource, VideoSource
 from viva_sitl.footage.srt import find_srt_sidecar, parse_srt
 from viva_sitl.footage.synthetic import SyntheticField, SyntheticFieldParams, synthetic_metadata
-from viva_sitl.footage.tiles import TileSettings, TileSource, environment_settings, is_tile_cache
+from viva_sitl.footage.tiles import TileSettings, TileSource, is_tile_cache, process_settings
 from viva_sitl.geo import GeoOrigin
 
 log = logging.getLogger(__name__)
@@ -179,7 +178,7 @@ def with_scale_sources(meta: FootageMetadata) -> FootageMetadata:
     return with_default_scale(with_photo_metadata(with_srt_sidecar(meta)))
 
 
-def _build(meta: FootageMetadata, tile_settings: Callable[[], TileSettings]) -> FootageSource:
+def _build(meta: FootageMetadata, tile_settings: TileSettings) -> FootageSource:
     if meta.kind is FootageKind.SYNTHETIC:
         try:
             params = SyntheticFieldParams(**dict(meta.synthetic))
@@ -191,7 +190,7 @@ def _build(meta: FootageMetadata, tile_settings: Callable[[], TileSettings]) -> 
         # a tile cache (`footage ingest --tiles`): served from its tiles, the source video is not needed
         return TileSource(
             meta, Path(meta.config_file).parent, lambda w, h: geometry_for(meta, w, h),
-            settings=tile_settings(),
+            settings=tile_settings,
         )  # fmt: skip
     path = Path(meta.path)
     if not path.exists():
@@ -337,8 +336,8 @@ def open_footage(
 
     A heavy video (>= ~4K) is served from its automatic tile cache, built the first time (`cache`: the policy,
     None = the process's, `autocache.set_policy`; see viva_sitl.footage.autocache). `tiles`: how a tile cache is
-    read (None: the process's environment, $VIVA_SITL_TILE_CACHE_MB / $VIVA_SITL_TILE_DECODE_THREADS, read here
-    when a tile cache is opened; see viva_sitl.footage.tiles.settings).
+    read (None: the process's, `tiles.set_process_settings`; nothing here reads the environment: the top floor
+    parses $VIVA_SITL_TILE_CACHE_MB / $VIVA_SITL_TILE_DECODE_THREADS, see viva_sitl.footage.tiles.settings).
 
     Raises FootageError (a ValueError) with one clear message for anything unusable; nothing is left open then.
     """
@@ -360,9 +359,7 @@ def open_footage(
             "footage %s: explicit gsd_m_per_px %.4f overrides the corners' scale", meta.name, gsd_m_per_px
         )
 
-    def tile_settings() -> TileSettings:
-        return tiles if tiles is not None else environment_settings()
-
+    tile_settings = tiles if tiles is not None else process_settings()
     src = _build(meta, tile_settings)
     if isinstance(src, VideoSource):  # the factory's own product: a video may be served from its tile cache
         return _auto_cached(src, meta, cache or autocache.policy(), tile_settings)
@@ -373,17 +370,12 @@ def _auto_cached(
     src: VideoSource,
     meta: FootageMetadata,
     policy: autocache.CachePolicy,
-    tile_settings: Callable[[], TileSettings],
+    settings: TileSettings,
 ) -> FootageSource:
     """`src` itself, or (heavy footage, cache enabled) the same footage from its automatic tile cache."""
     w, h = src.frame_size_px
     if not policy.enabled or w * h < policy.min_pixels:
         return src
-    try:
-        settings = tile_settings()  # a bad setting fails now, before the cache is checked (or rebuilt)
-    except BaseException:
-        src.close()
-        raise
     n = src.frame_count
     try:
         folder = autocache.ensure_cache(

@@ -63,6 +63,7 @@ the objects, the vehicle and its camera footprint (RGB).
 
 from __future__ import annotations
 
+import os
 from collections import deque
 from collections.abc import Callable
 from dataclasses import replace
@@ -83,6 +84,7 @@ from viva_sitl.evaluation.monitor import Limits, TrialMonitor
 from viva_sitl.evaluation.spec import Scenario, TrialSpec, footage_box_of
 from viva_sitl.footage import FootageSource, open_footage
 from viva_sitl.footage.synthetic import SyntheticField
+from viva_sitl.footage.tiles.settings import TileSettings
 from viva_sitl.gym.actions import ActionMode, action_mode, assisted_velocity, land_assist_limits
 from viva_sitl.gym.config import (
     ACTION_MODES,
@@ -466,11 +468,19 @@ class LandingEnv(gym.Env[Any, NDArray[np.float32]]):
             self.vehicle.close()
 
 
+def gym_tile_settings() -> TileSettings:
+    """How a gym environment reads tile caches: the documented $VIVA_SITL_TILE_CACHE_MB /
+    $VIVA_SITL_TILE_DECODE_THREADS, read here (the gym is the top floor for its users; the footage layer reads no
+    environment); a bad value is one FootageError line."""
+    return TileSettings.from_environ(os.environ)
+
+
 def _env_footage(footage: str | Path | FootageSource, cfg: SimConfig) -> FootageSource:
     """`footage` opened with the config's footage geometry (a FootageSource as it is), a synthetic field drawn in
     line."""
     source = footage if isinstance(footage, FootageSource) else open_footage(
-        footage, altitude_m=cfg.footage_alt_m, hfov_deg=cfg.footage_hfov_deg, gsd_m_per_px=cfg.footage_gsd_m_per_px
+        footage, altitude_m=cfg.footage_alt_m, hfov_deg=cfg.footage_hfov_deg, gsd_m_per_px=cfg.footage_gsd_m_per_px,
+        tiles=gym_tile_settings(),
     )  # fmt: skip
     if isinstance(source, SyntheticField) and source.params.draw_ahead:
         # which window the draw-ahead thread delivers depends on thread timing (a busy worker skips one), and

@@ -39,7 +39,7 @@ from viva_sitl.evaluation.episode import ControlSchedule
 from viva_sitl.footage import FootageSource, VideoSource, open_footage
 from viva_sitl.footage.synthetic import SyntheticField
 from viva_sitl.gym.config import FLAT_KWARGS, LandingEnvConfig, ScenarioConfig
-from viva_sitl.gym.env import FootageBinding, LandingEnv
+from viva_sitl.gym.env import FootageBinding, LandingEnv, gym_tile_settings
 from viva_sitl.gym.scenario import Scenario, default_spec, resolve_spec, with_footage
 from viva_sitl.world import world_from_source
 
@@ -75,10 +75,10 @@ class SharedFootageVectorEnv(VectorEnv[Any, Any, Any]):
         spec = default_spec(str(footage)) if trial_spec is None else with_footage(trial_spec, str(footage))
         self.config = replace(config, scenario=ScenarioConfig(spec))
         cfg = config.sim
-        opts: dict[str, Any] = {}
+        opts: dict[str, Any] = {"tiles": gym_tile_settings()}
         if cfg is not None:
-            opts = {"altitude_m": cfg.footage_alt_m, "hfov_deg": cfg.footage_hfov_deg,
-                    "gsd_m_per_px": cfg.footage_gsd_m_per_px}  # fmt: skip
+            opts |= {"altitude_m": cfg.footage_alt_m, "hfov_deg": cfg.footage_hfov_deg,
+                     "gsd_m_per_px": cfg.footage_gsd_m_per_px}  # fmt: skip
         self._open = lambda: open_footage(footage, **opts)
         first = self._open()
         self._sources: dict[float, FootageSource] = {0.0: first}  # slot offset (s) -> its shared source

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from pathlib import Path
 
@@ -14,6 +15,9 @@ def _run(fn: object, prog: str) -> int:
     from viva_sitl.footage import FootageError
 
     try:
+        from viva_sitl.footage.tiles import TileSettings, set_process_settings
+
+        set_process_settings(TileSettings.from_environ(os.environ))  # the top floor reads $VIVA_SITL_TILE_*
         assert callable(fn)
         return int(fn())
     except (PerceptionError, FootageError) as exc:

@@ -4,8 +4,8 @@ Every footage frame is stored as its full mip-map pyramid (level 0 = the decoded
 halving of the previous one, exactly as `viva_sitl.camera.LazyPyramid` builds it), each level cut into
 `tile_px` x `tile_px` tiles, each tile intra-coded on its own (as map tile servers and cloud-optimised GeoTIFFs do).
 A render decodes only the tiles under the VAC's footprint at the level(s) it samples; decoded tiles are kept in an
-LRU with a byte cap (256 MiB; `TileSettings`, an argument; `open_footage` reads `$VIVA_SITL_TILE_CACHE_MB` once,
-see `settings.py`).
+LRU with a byte cap (256 MiB; `TileSettings`, an argument or the process's; `$VIVA_SITL_TILE_CACHE_MB` is read by
+the top floor, not here, see `settings.py`).
 Across frames the LRU only pays off when frames repeat (a still, or a short clip that loops inside a trial); over a
 clip longer than the cap every frame's tiles are decoded afresh.
 
@@ -33,7 +33,7 @@ cannot see is 8-byte words swapped with each other inside one tile, which no sto
 ~0.27 ms of a ~1.5 ms step at 50 m (5.8 tiles per step; bench/results_tiles.md, session 8).
 
 Modules: `format` (folder layout, tile grid, index records, checksums, codecs), `read` (TileCache, TileSource),
-`build` (build_tiles), `settings` (TileSettings, the environment variables); this package re-exports their names.
+`build` (build_tiles), `settings` (TileSettings, the process's settings); this package re-exports their names.
 """
 
 from viva_sitl.footage.tiles.build import TileBuildResult, build_tiles
@@ -70,8 +70,8 @@ from viva_sitl.footage.tiles.settings import (
     DEFAULT_CACHE_BYTES,
     DEFAULT_DECODE_THREADS,
     TileSettings,
-    check_tile_environment,
-    environment_settings,
+    process_settings,
+    set_process_settings,
 )
 
 __all__ = [
@@ -103,11 +103,11 @@ __all__ = [
     "_decode",
     "_encode",
     "build_tiles",
-    "check_tile_environment",
     "encode_frame",
-    "environment_settings",
     "frame_pyramid",
     "is_tile_cache",
+    "process_settings",
     "read_progress",
+    "set_process_settings",
     "tile_checksum",
 ]

@@ -46,11 +46,11 @@ class TileCache:
         cache_bytes: int | None = None,
         decode_threads: int | None = None,
     ) -> None:
-        """`settings`: the LRU cap and decode threads (None: TileSettings() defaults; the environment is read only
-        by `open_footage`); `cache_bytes`, `decode_threads` override one of them."""
+        """`settings`: the LRU cap and decode threads (None: TileSettings() defaults; nothing here reads the
+        environment); `cache_bytes`, `decode_threads` override one of them."""
         base = settings if settings is not None else TileSettings()
         cap = base.cache_bytes if cache_bytes is None else int(cache_bytes)
-        threads = base.decode_threads if decode_threads is None else int(decode_threads)
+        threads = base.threads if decode_threads is None else int(decode_threads)
         self.folder = Path(folder)
         self.dir = self.folder / TILES_SUBDIR
         self._rebuild = f"rebuild it with `viva-sitl footage ingest --tiles` (or delete {self.folder})"

@@ -1,20 +1,23 @@
 """How a process reads tile caches: `TileSettings` (decoded-tile LRU cap, decode threads), passed to `TileCache` /
 `TileSource` / `open_footage` as an argument.
 
-The documented environment variables ($VIVA_SITL_TILE_CACHE_MB, $VIVA_SITL_TILE_DECODE_THREADS: a process and the
-trial workers it starts; the trials' pool sets the decode threads per worker, 1 when the workers fill the cores,
-where handing ~2 misses per frame to a pool costs more than it overlaps) are parsed by `TileSettings.from_environ`
-from a mapping its caller passes; `environment_settings()` is the one place that hands it the process's
-environment (called by `open_footage` when it is given no settings, and by the campaign's up-front check). A bad
-value is one FootageError naming the variable, raised before any file is opened.
+Nothing in the footage layer reads the environment. The documented environment variables
+($VIVA_SITL_TILE_CACHE_MB, $VIVA_SITL_TILE_DECODE_THREADS: a process and the trial workers it starts; the trials'
+pool sets the decode threads per worker, 1 when the workers fill the cores, where handing ~2 misses per frame to a
+pool costs more than it overlaps, unless the user chose them) are read on the top floor: the `viva-sitl` commands,
+the gym environments and the benches call `TileSettings.from_environ(os.environ)` once and make the result the
+process's settings (`set_process_settings`, what `open_footage` uses when it is given none, as
+`autocache.set_policy`) or pass it as an argument; the campaign hands it to its workers as an argument, and an
+external trial's `viva-sitl run` gets it back as those variables (`to_environ`). A bad value is one FootageError
+naming the variable, raised by `from_environ` before any file is opened. A Python caller that wants the variables
+honoured does the same: `set_process_settings(TileSettings.from_environ(os.environ))`.
 """
 
 from __future__ import annotations
 
 import math
-import os
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 from viva_sitl.footage.errors import FootageError
 
@@ -48,10 +51,28 @@ def _parse(
 @dataclass(frozen=True)
 class TileSettings:
     """Settings of a tile cache reader: `cache_bytes` caps the LRU of decoded tiles, `decode_threads` decode one
-    region's missing tiles (1: in the caller's thread)."""
+    region's missing tiles (1: in the caller's thread; None: not chosen, DEFAULT_DECODE_THREADS, or the cores a
+    trial worker is left: `or_threads`)."""
 
     cache_bytes: int = DEFAULT_CACHE_BYTES
-    decode_threads: int = DEFAULT_DECODE_THREADS
+    decode_threads: int | None = None
+
+    @property
+    def threads(self) -> int:
+        """The decode threads a reader uses."""
+        return DEFAULT_DECODE_THREADS if self.decode_threads is None else self.decode_threads
+
+    def or_threads(self, threads: int) -> TileSettings:
+        """These settings with `threads` decode threads where none were chosen (the chosen ones win)."""
+        return self if self.decode_threads is not None else replace(self, decode_threads=max(1, int(threads)))
+
+    def to_environ(self) -> dict[str, str]:
+        """The documented variables that give a child process these settings (`from_environ` reads them back
+        exactly; decode threads not chosen: not set)."""
+        env = {CACHE_ENV: repr(self.cache_bytes / (1 << 20))}
+        if self.decode_threads is not None:
+            env[DECODE_THREADS_ENV] = str(self.decode_threads)
+        return env
 
     @staticmethod
     def from_environ(environ: Mapping[str, str]) -> TileSettings:
@@ -64,17 +85,21 @@ class TileSettings:
         n = _parse(environ, DECODE_THREADS_ENV, int, lambda v: v >= 1, "a whole number of threads >= 1")
         return TileSettings(
             cache_bytes=DEFAULT_CACHE_BYTES if mb is None else max(1, int(mb * (1 << 20))),
-            decode_threads=DEFAULT_DECODE_THREADS if n is None else int(n),
+            decode_threads=None if n is None else int(n),
         )
 
 
-def environment_settings() -> TileSettings:
-    """The process's settings from its environment (see the module docstring): the ONE read of os.environ for
-    tile caches."""
-    return TileSettings.from_environ(os.environ)
+_process = TileSettings()
 
 
-def check_tile_environment() -> None:
-    """Raise the one-line FootageError of a bad $VIVA_SITL_TILE_CACHE_MB / $VIVA_SITL_TILE_DECODE_THREADS now (for a
-    parent whose children will open tile caches: it fails once, up front, rather than in every child)."""
-    environment_settings()
+def set_process_settings(settings: TileSettings) -> None:
+    """The process's settings: what `open_footage` uses when it is given none (set by the top floor: the
+    `viva-sitl` commands from the environment, a campaign's worker from its argument)."""
+    global _process
+    if not isinstance(settings, TileSettings):
+        raise TypeError(f"tile settings must be a TileSettings, got {type(settings).__name__}")
+    _process = settings
+
+
+def process_settings() -> TileSettings:
+    return _process
