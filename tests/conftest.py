@@ -4,6 +4,7 @@ and the MAVLink protocol tests' client + selftest vehicle on a thread (`client`,
 from __future__ import annotations
 
 import signal
+import sys
 from collections.abc import Callable, Generator, Iterator
 from pathlib import Path
 from typing import Any
@@ -34,6 +35,21 @@ def pytest_runtest_makereport(
     rep = yield
     setattr(item, f"rep_{rep.when}", rep)
     return rep
+
+
+_torch_threads_set = False
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_runtest_setup(item: pytest.Item) -> None:
+    # Torch in the test process computes on one thread. Its default (one per core) spin-waits for a second core
+    # that, on a shared 2-core machine, the other processes hold: the U-Net overfit test took 12 s on two threads
+    # at load ~5 and 1.2 s on one. Only once torch is imported (by a test module or a test); never imported here.
+    global _torch_threads_set
+    torch = sys.modules.get("torch")
+    if torch is not None and not _torch_threads_set:
+        torch.set_num_threads(1)
+        _torch_threads_set = True
 
 
 @pytest.fixture
