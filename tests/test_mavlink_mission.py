@@ -77,6 +77,7 @@ def _same(a: float, b: float) -> bool:
     return (math.isnan(a) and math.isnan(b)) or a == pytest.approx(b)
 
 
+@pytest.mark.slow  # ported to the sim-clock harness: test_mavlink_harness.py::test_mission_upload_download_clear_round_trip
 def test_upload_download_clear_round_trip(client: MavClient, vehicle: VehicleThread) -> None:
     items = _items()
     assert _upload(client, items) == M.MAV_MISSION_ACCEPTED
@@ -163,6 +164,7 @@ def test_out_of_order_and_duplicate_items(client: MavClient, vehicle: VehicleThr
     assert ack is not None and ack.type == M.MAV_MISSION_ACCEPTED
 
 
+@pytest.mark.slow  # ported to the sim-clock harness: test_mavlink_harness.py::test_mission_upload_timeout_retries_then_cancels
 def test_upload_timeout_retries_then_cancels(
     client: MavClient, vehicle_factory: Callable[..., VehicleThread]
 ) -> None:

@@ -199,6 +199,7 @@ def _float_as_int(f: float) -> int:
     return int(struct.unpack("<i", struct.pack("<f", f))[0])
 
 
+@pytest.mark.slow  # ported to the sim-clock harness: test_mavlink_harness.py::test_param_set_float_and_int32_bytewise
 def test_param_set_float_and_int32_bytewise(client: MavClient, vehicle: VehicleThread) -> None:
     client.send(client.mav.param_set_encode(1, 1, b"MIS_TAKEOFF_ALT", 5.5, M.MAV_PARAM_TYPE_REAL32))
     pv = client.wait_for(lambda m: m.get_type() == "PARAM_VALUE" and m.param_id == "MIS_TAKEOFF_ALT", 1.0)
@@ -222,6 +223,7 @@ def test_param_set_float_and_int32_bytewise(client: MavClient, vehicle: VehicleT
     assert pv is not None and pv.param_id == "MIS_TAKEOFF_ALT" and pv.param_value == pytest.approx(5.5)
 
 
+@pytest.mark.slow  # ported to the sim-clock harness: test_mavlink_harness.py::test_param_rejections_as_px4
 def test_param_rejections_as_px4(client: MavClient, vehicle: VehicleThread) -> None:
     # unknown name: no PARAM_VALUE, a STATUSTEXT (PX4: "[pm] unknown param")
     client.send(client.mav.param_set_encode(1, 1, b"NO_SUCH_PARAM", 1.0, M.MAV_PARAM_TYPE_REAL32))
@@ -273,6 +275,7 @@ def _rate(client: MavClient, msg_type: str, seconds: float) -> float:
     return (len(times) - 1) / (times[-1] - times[0])
 
 
+@pytest.mark.slow  # ported to the sim-clock harness: test_mavlink_harness.py::test_default_rates_and_set_message_interval
 def test_default_rates_and_set_message_interval(client: MavClient, vehicle: VehicleThread) -> None:
     client.poll(0.3)
     assert _rate(client, "ATTITUDE", 1.5) == pytest.approx(100.0, rel=0.3)
@@ -301,6 +304,7 @@ def test_default_rates_and_set_message_interval(client: MavClient, vehicle: Vehi
     assert mi is not None and mi.message_id == M.MAVLINK_MSG_ID_ATTITUDE and mi.interval_us == 10_000
 
 
+@pytest.mark.slow  # ported to the sim-clock harness: test_mavlink_harness.py::test_ping_and_timesync_answered
 def test_ping_and_timesync_answered(client: MavClient, vehicle: VehicleThread) -> None:
     client.send(client.mav.ping_encode(123456789, 42, 0, 0))
     ping = client.wait_for("PING", 1.0)
@@ -349,6 +353,7 @@ def test_gcs_link_normal_profile_option(client: MavClient) -> None:
 # --- commands -------------------------------------------------------------------------------------------------
 
 
+@pytest.mark.slow  # ported to the sim-clock harness: test_mavlink_harness.py::test_every_command_is_acked
 def test_every_command_is_acked(client: MavClient, vehicle: VehicleThread) -> None:
     def ack(cmd: int, *p: float, **kw: int) -> int:
         a = client.command(cmd, *p, timeout_s=0.5, **kw)
