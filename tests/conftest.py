@@ -10,7 +10,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from mav_client import MavClient, VehicleThread
+from mav_client import MavClient, Rig, VehicleThread, sim_rig
 from sitl_process import MavlinkPeer, SitlProcess, e2e_speed, free_udp_ports
 
 from viva_sitl.config import SimConfig
@@ -150,6 +150,31 @@ def vehicle_factory(client: MavClient) -> Iterator[Callable[..., VehicleThread]]
     yield start
     for vt in started:
         vt.stop()
+
+
+@pytest.fixture
+def rig_factory(request: pytest.FixtureRequest) -> Iterator[Callable[..., Rig]]:
+    """make(transport, speed=1.0, footage=None, **MavlinkConfig fields) -> Rig. "udp": the `client` fixture and a vehicle thread
+    (`vehicle_factory`) at `speed`; "sim": the sim-clock harness, its client's timeouts scaled by `speed`. A test
+    module parametrizes its `rig` over both, the UDP one marked slow (the same exchanges, seconds of real time)."""
+    sims: list[Rig] = []
+
+    def make(transport: str, speed: float = 1.0, footage: str | Path | None = None, **config: Any) -> Rig:
+        if transport == "udp":
+            client: MavClient = request.getfixturevalue("client")
+            vt: VehicleThread = request.getfixturevalue("vehicle_factory")(
+                speed=speed, footage=footage, **config
+            )
+            assert vt.vehicle is not None and vt.endpoint is not None
+            return Rig(client, vt.vehicle, vt.endpoint, vt.call)
+        assert transport == "sim", transport
+        rig = sim_rig(speed, footage=footage, **config)
+        sims.append(rig)
+        return rig
+
+    yield make
+    for rig in sims:
+        rig.vehicle.vehicle.close()
 
 
 @pytest.fixture(autouse=True, scope="session")

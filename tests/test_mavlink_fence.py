@@ -10,20 +10,18 @@ from __future__ import annotations
 
 import math
 import struct
-from collections.abc import Callable, Iterator
-from dataclasses import dataclass
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import pytest
-from mav_client import MavClient, VehicleThread
+from mav_client import MavClient, Rig, VehicleThread
 from pymavlink.dialects.v20 import common as M
 
 from viva_sitl.autopilot import FlightMode
 from viva_sitl.geo import GeoOrigin
 from viva_sitl.mavlink import MavlinkConfig
-from viva_sitl.mavlink.testing import SimClient, SimHarness
-from viva_sitl.selftest import SelftestVehicle, SnapshotCamera
+from viva_sitl.selftest import SnapshotCamera
 
 NAN = math.nan
 GEO = GeoOrigin()
@@ -31,7 +29,7 @@ FENCE, RALLY, MISSION = M.MAV_MISSION_TYPE_FENCE, M.MAV_MISSION_TYPE_RALLY, M.MA
 Item = tuple[int, int, float, float, float, float, int, int, float]  # frame, command, p1..p4, x, y, z
 
 
-SPEED = 4.0  # the UDP vehicle's sim/wall factor; the harness client scales its (sim) timeouts by it to match
+SPEED = 4.0  # the UDP vehicle's sim/wall factor; the harness client's sim timeouts are scaled by it to match
 
 
 @pytest.fixture
@@ -39,53 +37,9 @@ def vehicle(vehicle_factory: Callable[..., VehicleThread]) -> VehicleThread:
     return vehicle_factory(speed=SPEED)
 
 
-class ScaledSimClient:
-    """A harness client whose timeouts are the UDP tests' wall seconds at speed SPEED: the same sim-time budget."""
-
-    def __init__(self, inner: SimClient) -> None:
-        self.inner = inner
-
-    def __getattr__(self, name: str) -> Any:
-        return getattr(self.inner, name)
-
-    def wait_for(self, predicate: Any, timeout_s: float = 3.0) -> M.MAVLink_message | None:
-        return self.inner.wait_for(predicate, timeout_s * SPEED)
-
-    def command(
-        self, command: int, *params: float, timeout_s: float = 1.0, **kw: int
-    ) -> M.MAVLink_message | None:
-        return self.inner.command(command, *params, timeout_s=timeout_s * SPEED, **kw)
-
-    def poll(self, seconds: float) -> list[M.MAVLink_message]:
-        return self.inner.poll(seconds * SPEED)
-
-
-@dataclass
-class Rig:
-    """A MAVLink peer and the vehicle it talks to: `call(fn)` runs fn where the autopilot lives (the vehicle
-    thread's loop over UDP, at once on the harness)."""
-
-    client: Any  # MavClient over UDP, or ScaledSimClient on the harness: the same API
-    autopilot: Any
-    call: Callable[[Callable[[], Any]], Any]
-
-
-def _sim_rig(camera: SnapshotCamera | None = None) -> tuple[Rig, SelftestVehicle]:
-    sv = SelftestVehicle(speed=SPEED, camera=camera)
-    h = SimHarness(sv, lambda: sv.vehicle.step(1))
-    return Rig(ScaledSimClient(h.client()), sv.autopilot, lambda fn: fn()), sv
-
-
 @pytest.fixture(params=[pytest.param("udp", marks=pytest.mark.slow), "sim"])
-def rig(request: pytest.FixtureRequest) -> Iterator[Rig]:
-    if request.param == "udp":
-        client: MavClient = request.getfixturevalue("client")
-        vt: VehicleThread = request.getfixturevalue("vehicle")
-        yield Rig(client, vt.vehicle.autopilot, vt.call)  # type: ignore[union-attr]
-        return
-    rig, sv = _sim_rig()
-    yield rig
-    sv.vehicle.close()
+def rig(request: pytest.FixtureRequest, rig_factory: Callable[..., Rig]) -> Rig:
+    return rig_factory(request.param, speed=SPEED)
 
 
 def _ll(north: float, east: float) -> tuple[int, int]:

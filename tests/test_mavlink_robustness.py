@@ -9,7 +9,7 @@ from collections.abc import Callable
 
 import numpy as np
 import pytest
-from mav_client import MavClient, VehicleThread
+from mav_client import MavClient, Rig, VehicleThread
 from pymavlink.dialects.v20 import common as M
 
 NAN, INF = math.nan, math.inf
@@ -161,9 +161,14 @@ def test_garbage_nan_and_absurd_input_keep_vehicle_alive(client: MavClient, vehi
     assert np.all(np.isfinite(state.pos_ned_m)) and np.all(np.isfinite(state.att_rpy_rad))
 
 
-def test_nan_setpoints_in_offboard_flight_keep_state_finite(
-    client: MavClient, vehicle: VehicleThread
-) -> None:
+@pytest.fixture(params=[pytest.param("udp", marks=pytest.mark.slow), "sim"])
+def rig(request: pytest.FixtureRequest, rig_factory: Callable[..., Rig]) -> Rig:
+    """Over UDP at speed 2 (slow: seconds of setpoint streaming), or on the sim-clock harness (the fast tier)."""
+    return rig_factory(request.param, speed=2.0)
+
+
+def test_nan_setpoints_in_offboard_flight_keep_state_finite(rig: Rig) -> None:
+    client = rig.client
     mav = client.mav
 
     def sp(x: float, y: float, z: float) -> M.MAVLink_message:
@@ -182,5 +187,5 @@ def test_nan_setpoints_in_offboard_flight_keep_state_finite(
     lp = client.wait_for("LOCAL_POSITION_NED", 1.0)
     assert lp is not None and all(math.isfinite(v) for v in (lp.x, lp.y, lp.z, lp.vx, lp.vy, lp.vz))
     assert lp.z < -0.5, "the valid setpoints (z = -2) were not followed"
-    st = vehicle.stats()
+    st = rig.stats()
     assert st["setpoints_rejected"] >= 50 and st["setpoints_handled"] >= 80 and st["handler_errors"] == 0
