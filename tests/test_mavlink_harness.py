@@ -1,8 +1,9 @@
 """Protocol tests on the in-memory, sim-clock harness (viva_sitl.mavlink.testing): the real MavlinkEndpoint (links,
 dispatch, schedule, concern modules) and the real Autopilot + EAV dynamics, with no socket, thread or sleep.
 
-Ports of socket tests in test_mavlink_protocol.py and test_mavlink_mission.py (which stay, as the e2e check of the
-UDP transport): the same exchanges, with timeouts in simulated seconds, so rates and retries are exact counts.
+Ports of socket tests in test_mavlink_protocol.py, test_mavlink_mission.py and test_mavlink_logs.py (which stay, marked
+slow; the other socket tests there check the UDP transport in the fast tier): the same exchanges, with timeouts in
+simulated seconds, so rates and retries are exact counts.
 """
 
 from __future__ import annotations
@@ -10,6 +11,7 @@ from __future__ import annotations
 import math
 import struct
 from collections.abc import Iterator
+from pathlib import Path
 
 import pytest
 from pymavlink.dialects.v20 import common as M
@@ -386,3 +388,77 @@ def test_mission_upload_timeout_retries_then_cancels() -> None:
         assert h.endpoint.stats["mission_uploads_failed"] == 1
     finally:
         h.vehicle.vehicle.close()  # type: ignore[attr-defined]
+
+
+# --- ports of test_mavlink_logs.py ----------------------------------------------------------------------------
+
+
+def _ask(
+    client: SimClient, request: M.MAVLink_message, kind: str, sim_s: float = 0.5
+) -> list[M.MAVLink_message]:
+    """Send `request`; the messages of `kind` answered within `sim_s` simulated seconds (at once, or streamed; the
+    UDP test waits for 0.5 wall s of quiet)."""
+    n = len(client.received)
+    client.send(request)
+    client.poll(sim_s)
+    return [m for _, m in client.received[n:] if m.get_type() == kind]
+
+
+def _log_download(client: SimClient, log_id: int, size: int) -> bytes:
+    data = bytearray()
+    for msg in _ask(client, client.mav.log_request_data_encode(1, 1, log_id, 0, size), "LOG_DATA"):
+        assert msg.id == log_id and msg.ofs == len(data), (msg.ofs, len(data))
+        data += bytes(msg.data[: msg.count])
+    return bytes(data)
+
+
+def test_list_and_download_logs_and_the_bad_requests_px4_ignores(
+    harness: SimHarness, client: SimClient, tmp_path: Path
+) -> None:
+    old = tmp_path / "old.ulg"
+    old.write_bytes(bytes(range(256)) * 3 + b"tail")  # 772 bytes: 8 full LOG_DATA and a short one
+    cur = tmp_path / "log.ulg"
+    cur.write_bytes(b"ULog" * 50)
+    files = [(old, False), (cur, True)]
+    harness.endpoint.logs.set_source(lambda: list(files))
+
+    # before any list: PX4 does not answer
+    assert _ask(client, client.mav.log_request_data_encode(1, 1, 0, 0, 100), "LOG_DATA") == []
+
+    entries = _ask(client, client.mav.log_request_list_encode(1, 1, 0, 0xFFFF), "LOG_ENTRY")
+    assert [(e.id, e.num_logs, e.last_log_num, e.size) for e in entries] == [(0, 2, 1, 772), (1, 2, 1, 200)]
+    assert abs(entries[0].time_utc - old.stat().st_mtime) <= 1
+
+    assert _log_download(client, 0, 772) == old.read_bytes()
+    assert _log_download(client, 1, 0xFFFFFFFF) == cur.read_bytes()
+
+    # a part of a log, from an offset
+    parts = _ask(client, client.mav.log_request_data_encode(1, 1, 0, 180, 100), "LOG_DATA")
+    assert [(m.ofs, m.count) for m in parts] == [(180, 90), (270, 10)]
+    assert bytes(parts[0].data[:90]) + bytes(parts[1].data[:10]) == old.read_bytes()[180:280]
+
+    # past the end: one LOG_DATA with count 0 at the offset (PX4)
+    assert [
+        (m.id, m.ofs, m.count)
+        for m in _ask(client, client.mav.log_request_data_encode(1, 1, 0, 5000, 90), "LOG_DATA")
+    ] == [(0, 5000, 0)]
+
+    # unknown id: no answer (PX4)
+    assert _ask(client, client.mav.log_request_data_encode(1, 1, 7, 0, 90), "LOG_DATA") == []
+
+    # the log being written grows: a new list shows its new size
+    cur.write_bytes(b"ULog" * 60)
+    assert [
+        e.size for e in _ask(client, client.mav.log_request_list_encode(1, 1, 0, 0xFFFF), "LOG_ENTRY")
+    ] == [772, 240]
+
+    # a range of the list
+    assert [
+        (e.id, e.num_logs, e.last_log_num)
+        for e in _ask(client, client.mav.log_request_list_encode(1, 1, 1, 1), "LOG_ENTRY")
+    ] == [(1, 2, 1)]
+
+    # LOG_REQUEST_END forgets the list: data requests go unanswered until the next list
+    client.send(client.mav.log_request_end_encode(1, 1))
+    assert _ask(client, client.mav.log_request_data_encode(1, 1, 0, 0, 90), "LOG_DATA") == []
+    assert harness.endpoint.stats["handler_errors"] == 0
