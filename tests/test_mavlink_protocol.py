@@ -10,9 +10,10 @@ import subprocess
 import time
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import pytest
-from mav_client import MavClient, VehicleThread
+from mav_client import MavClient, Rig, VehicleThread
 from pymavlink.dialects.v20 import common as M
 
 import viva_sitl
@@ -39,6 +40,18 @@ def vehicle(vehicle_factory: Callable[..., VehicleThread], tmp_path: Path) -> Ve
 def fast_vehicle(vehicle_factory: Callable[..., VehicleThread]) -> VehicleThread:
     """Sim time 4x wall time: flights take seconds."""
     return vehicle_factory(speed=4.0)
+
+
+@pytest.fixture(params=[pytest.param("udp", marks=pytest.mark.slow), "sim"])
+def rig(request: pytest.FixtureRequest, rig_factory: Callable[..., Rig]) -> Rig:
+    """Over UDP in real time (slow: seconds of streams), or on the sim-clock harness (the fast tier)."""
+    return rig_factory(request.param)
+
+
+@pytest.fixture(params=[pytest.param("udp", marks=pytest.mark.slow), "sim"])
+def fast_rig(request: pytest.FixtureRequest, rig_factory: Callable[..., Rig]) -> Rig:
+    """Over UDP at speed 4 (slow: a flight in real time), or on the sim-clock harness (the fast tier)."""
+    return rig_factory(request.param, speed=4.0)
 
 
 def _autopilot_hb(m: M.MAVLink_message) -> bool:
@@ -266,7 +279,7 @@ def test_param_rejections_as_px4(client: MavClient, vehicle: VehicleThread) -> N
 # --- streams --------------------------------------------------------------------------------------------------
 
 
-def _rate(client: MavClient, msg_type: str, seconds: float) -> float:
+def _rate(client: Any, msg_type: str, seconds: float) -> float:
     client.received.clear()
     client.poll(seconds)
     times = [t for t, m in client.received if m.get_type() == msg_type]
@@ -440,9 +453,8 @@ def test_arm_takeoff_land_seen_in_telemetry(client: MavClient, fast_vehicle: Veh
     assert any("Landing detected" in t for t in texts), texts
 
 
-def test_takeoff_amsl_altitude_then_reposition_command_int(
-    client: MavClient, fast_vehicle: VehicleThread
-) -> None:
+def test_takeoff_amsl_altitude_then_reposition_command_int(fast_rig: Rig) -> None:
+    client = fast_rig.client
     assert client.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1).result == M.MAV_RESULT_ACCEPTED  # type: ignore[union-attr]
     # COMMAND_LONG NAV_TAKEOFF param7 is AMSL (PX4): home 488 m + 4.5 m
     ack = client.command(M.MAV_CMD_NAV_TAKEOFF, NAN, NAN, NAN, NAN, NAN, NAN, 488.0 + 4.5)
@@ -452,7 +464,7 @@ def test_takeoff_amsl_altitude_then_reposition_command_int(
     assert client.wait_for(lambda m: m.get_type() == "EXTENDED_SYS_STATE" and m.landed_state == 2, 3.0)
     lp = client.wait_for("LOCAL_POSITION_NED", 1.0)
     assert lp is not None and lp.z == pytest.approx(-4.5, abs=0.3)
-    geo = fast_vehicle.call(lambda: fast_vehicle.vehicle.geo)
+    geo = fast_rig.call(lambda: fast_rig.vehicle.geo)
     lat, lon, _ = geo.ned_to_global(8.0, -4.0, 0.0)
     client.send(client.mav.command_int_encode(
         1, 1, M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, M.MAV_CMD_DO_REPOSITION, 0, 0,
@@ -472,9 +484,10 @@ def test_takeoff_amsl_altitude_then_reposition_command_int(
     assert lp is not None, "did not reach the DO_REPOSITION target (8, -4, -4)"
 
 
-def test_highres_imu_on_request_as_mavsdk_set_rate_imu(client: MavClient, vehicle: VehicleThread) -> None:
+def test_highres_imu_on_request_as_mavsdk_set_rate_imu(rig: Rig) -> None:
     """MAVSDK's telemetry.set_rate_imu (its highres_imu example) sends SET_MESSAGE_INTERVAL(HIGHRES_IMU): PX4 streams
     it; a vehicle at rest on the ground reads -g on the accelerometer's z, no rotation, ISA pressure at home."""
+    client = rig.client
     client.poll(0.3)
     assert _rate(client, "HIGHRES_IMU", 0.5) == 0.0  # not in the default streams
     ack = client.command(M.MAV_CMD_SET_MESSAGE_INTERVAL, M.MAVLINK_MSG_ID_HIGHRES_IMU, 20_000)
