@@ -1,15 +1,17 @@
 """Protocol tests on the in-memory, sim-clock harness (viva_sitl.mavlink.testing): the real MavlinkEndpoint (links,
 dispatch, schedule, concern modules) and the real Autopilot + EAV dynamics, with no socket, thread or sleep.
 
-Ports of socket tests in test_mavlink_protocol.py, test_mavlink_mission.py and test_mavlink_logs.py (which stay, marked
-slow; the other socket tests there check the UDP transport in the fast tier): the same exchanges, with timeouts in
-simulated seconds, so rates and retries are exact counts.
-"""
+Ports of socket tests in test_mavlink_protocol.py, test_mavlink_mission.py, test_mavlink_logs.py and
+test_mavlink_io.py (which stay, marked slow; the other socket tests there check the UDP transport in the fast tier):
+the same exchanges, with timeouts in simulated seconds, so rates and retries are exact counts. Other protocol tests
+run one body over both (conftest's `rig_factory`)."""
 
 from __future__ import annotations
 
+import hashlib
 import math
 import struct
+import time
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -462,3 +464,62 @@ def test_list_and_download_logs_and_the_bad_requests_px4_ignores(
     client.send(client.mav.log_request_end_encode(1, 1))
     assert _ask(client, client.mav.log_request_data_encode(1, 1, 0, 0, 90), "LOG_DATA") == []
     assert harness.endpoint.stats["handler_errors"] == 0
+
+
+# --- ports of test_mavlink_io.py ------------------------------------------------------------------------------
+
+KEY_HEX = "00112233445566778899aabbccddeeff00112233445566778899aabbccddeeff"
+
+
+def _sign(client: SimClient, key: bytes) -> None:
+    """Make the client a signing MAVLink 2 peer (pymavlink's own signing)."""
+    client.mav.signing.secret_key = key
+    client.mav.signing.sign_outgoing = True
+    client.mav.signing.link_id = 1
+    client.mav.signing.timestamp = int((time.time() - 1420070400) * 100_000)
+
+
+def test_signing_accepts_signed_client_rejects_unsigned() -> None:
+    key = bytes.fromhex(KEY_HEX)
+    h = _harness(signing_key=KEY_HEX)
+    try:
+        signed = h.client()  # the API link's remote
+        unsigned = h.client(addr=("127.0.0.1", 40001))
+        _sign(signed, key)
+        # a signed client is served...
+        signed.send(signed.mav.param_request_read_encode(1, 1, b"COM_DL_LOSS_T", -1))
+        assert signed.wait_for(lambda m: m.get_type() == "PARAM_VALUE" and m.param_id == "COM_DL_LOSS_T", 2.0)
+        ack = signed.command(M.MAV_CMD_REQUEST_MESSAGE, M.MAVLINK_MSG_ID_AUTOPILOT_VERSION)
+        assert ack is not None and ack.result == M.MAV_RESULT_ACCEPTED
+        # ...and what the vehicle sends is signed with the key (the checker's parser verifies it)
+        checker = M.MAVLink(None)
+        checker.signing.secret_key = key
+        hb = signed.wait_for("HEARTBEAT", 3.0)
+        assert hb is not None
+        frame = bytes(hb.get_msgbuf())
+        assert frame[2] & M.MAVLINK_IFLAG_SIGNED
+        assert checker.parse_char(frame).get_type() == "HEARTBEAT"  # raises on a bad signature
+        before = h.endpoint.stats["unsigned_rejected"]
+        # an unsigned client is not: no answer, counted
+        assert (
+            unsigned.command(M.MAV_CMD_REQUEST_MESSAGE, M.MAVLINK_MSG_ID_AUTOPILOT_VERSION, timeout_s=1.5)
+            is None
+        )
+        unsigned.send(unsigned.mav.param_request_read_encode(1, 1, b"COM_DL_LOSS_T", -1))
+        # a client signing with another key neither
+        wrong = h.client(addr=("127.0.0.1", 40002))
+        _sign(wrong, hashlib.sha256(b"not the key").digest())
+        assert (
+            wrong.command(M.MAV_CMD_REQUEST_MESSAGE, M.MAVLINK_MSG_ID_AUTOPILOT_VERSION, timeout_s=1.5)
+            is None
+        )
+        # RADIO_STATUS is one of the messages PX4 accepts unsigned
+        unsigned.send(unsigned.mav.radio_status_encode(200, 190, 100, 90, 80, 0, 0))
+        signed.poll(0.3)
+        stats = h.endpoint.stats
+        assert stats["unsigned_rejected"] - before == 3
+        assert stats["commands"] == 1  # only the signed client's command reached a handler
+        assert stats["signing"] == {"key_set": True, "sign_cfg": 1}
+        assert not any(m.get_type() == "COMMAND_ACK" for _, m in unsigned.received)
+    finally:
+        h.vehicle.vehicle.close()  # type: ignore[attr-defined]
