@@ -154,21 +154,32 @@ def vehicle_factory(client: MavClient) -> Iterator[Callable[..., VehicleThread]]
 
 @pytest.fixture
 def rig_factory(request: pytest.FixtureRequest) -> Iterator[Callable[..., Rig]]:
-    """make(transport, speed=1.0, footage=None, **MavlinkConfig fields) -> Rig. "udp": the `client` fixture and a vehicle thread
-    (`vehicle_factory`) at `speed`; "sim": the sim-clock harness, its client's timeouts scaled by `speed`. A test
-    module parametrizes its `rig` over both, the UDP one marked slow (the same exchanges, seconds of real time)."""
+    """make(transport, speed=1.0, footage=None, sim_config=None, **MavlinkConfig fields) -> Rig. "udp": the `client`
+    fixture and a vehicle thread (`vehicle_factory`) at `speed`; "sim": the sim-clock harness, its client's timeouts
+    scaled by `speed`. A test module parametrizes its `rig` over both, the UDP one marked slow (the same exchanges,
+    seconds of real time)."""
     sims: list[Rig] = []
 
-    def make(transport: str, speed: float = 1.0, footage: str | Path | None = None, **config: Any) -> Rig:
+    def make(
+        transport: str,
+        speed: float = 1.0,
+        footage: str | Path | None = None,
+        sim_config: SimConfig | None = None,
+        **config: Any,
+    ) -> Rig:
         if transport == "udp":
             client: MavClient = request.getfixturevalue("client")
             vt: VehicleThread = request.getfixturevalue("vehicle_factory")(
-                speed=speed, footage=footage, **config
+                speed=speed, footage=footage, sim_config=sim_config, **config
             )
             assert vt.vehicle is not None and vt.endpoint is not None
-            return Rig(client, vt.vehicle, vt.endpoint, vt.call)
+
+            def peer(sysid: int, compid: int) -> MavClient:
+                return MavClient(target=vt.api, sysid=sysid, compid=compid)
+
+            return Rig(client, vt.vehicle, vt.endpoint, vt.call, peer)
         assert transport == "sim", transport
-        rig = sim_rig(speed, footage=footage, **config)
+        rig = sim_rig(speed, footage=footage, sim_config=sim_config, **config)
         sims.append(rig)
         return rig
 

@@ -224,6 +224,9 @@ class ScaledSimClient:
     def poll(self, seconds: float) -> list[MavMessage]:
         return self.inner.poll(seconds * self.speed)
 
+    def close(self) -> None:
+        """Nothing to close (no socket); MavClient's API."""
+
 
 class Rig:
     """A MAVLink peer and the vehicle it talks to: `call(fn)` runs fn where the autopilot lives (the vehicle
@@ -235,21 +238,35 @@ class Rig:
         vehicle: SelftestVehicle,
         endpoint: MavlinkEndpoint,
         call: Callable[[Callable[[], Any]], Any],
+        peer: Callable[[int, int], Any],
     ) -> None:
         self.client = client  # MavClient over UDP, or ScaledSimClient on the harness: the same API
         self.vehicle = vehicle
         self.autopilot = vehicle.autopilot
         self.endpoint = endpoint
         self.call = call
+        self.peer = (
+            peer  # peer(sysid, compid): another client on the API link, at an address of its own (close it)
+        )
 
     def stats(self) -> dict[str, Any]:
         return dict(self.call(lambda: self.endpoint.stats))
 
 
 def sim_rig(
-    speed: float = 1.0, camera: CameraLink | None = None, footage: str | Path | None = None, **config: Any
+    speed: float = 1.0,
+    camera: CameraLink | None = None,
+    footage: str | Path | None = None,
+    sim_config: SimConfig | None = None,
+    **config: Any,
 ) -> Rig:
     """The harness over a fresh SelftestVehicle and MavlinkConfig(**config); close with rig.vehicle.vehicle.close()."""
-    sv = SelftestVehicle(speed=speed, camera=camera, footage=footage)
+    sv = SelftestVehicle(sim_config, speed=speed, camera=camera, footage=footage)
     h = SimHarness(sv, lambda: sv.vehicle.step(1), MavlinkConfig(**config))
-    return Rig(ScaledSimClient(h.client(), speed), sv, h.endpoint, lambda fn: fn())
+
+    def peer(sysid: int, compid: int) -> ScaledSimClient:
+        return ScaledSimClient(
+            h.client(addr=("127.0.0.1", 41000 + len(h.clients)), sysid=sysid, compid=compid), speed
+        )
+
+    return Rig(ScaledSimClient(h.client(), speed), sv, h.endpoint, lambda fn: fn(), peer)
