@@ -4,12 +4,13 @@ and the MAVLink protocol tests' client + selftest vehicle on a thread (`client`,
 from __future__ import annotations
 
 import signal
+import sys
 from collections.abc import Callable, Generator, Iterator
 from pathlib import Path
 from typing import Any
 
 import pytest
-from mav_client import MavClient, VehicleThread
+from mav_client import MavClient, Rig, VehicleThread, sim_rig
 from sitl_process import MavlinkPeer, SitlProcess, e2e_speed, free_udp_ports
 
 from viva_sitl.config import SimConfig
@@ -34,6 +35,21 @@ def pytest_runtest_makereport(
     rep = yield
     setattr(item, f"rep_{rep.when}", rep)
     return rep
+
+
+_torch_threads_set = False
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_runtest_setup(item: pytest.Item) -> None:
+    # Torch in the test process computes on one thread. Its default (one per core) spin-waits for a second core
+    # that, on a shared 2-core machine, the other processes hold: the U-Net overfit test took 12 s on two threads
+    # at load ~5 and 1.2 s on one. Only once torch is imported (by a test module or a test); never imported here.
+    global _torch_threads_set
+    torch = sys.modules.get("torch")
+    if torch is not None and not _torch_threads_set:
+        torch.set_num_threads(1)
+        _torch_threads_set = True
 
 
 @pytest.fixture
@@ -134,6 +150,42 @@ def vehicle_factory(client: MavClient) -> Iterator[Callable[..., VehicleThread]]
     yield start
     for vt in started:
         vt.stop()
+
+
+@pytest.fixture
+def rig_factory(request: pytest.FixtureRequest) -> Iterator[Callable[..., Rig]]:
+    """make(transport, speed=1.0, footage=None, sim_config=None, **MavlinkConfig fields) -> Rig. "udp": the `client`
+    fixture and a vehicle thread (`vehicle_factory`) at `speed`; "sim": the sim-clock harness, its client's timeouts
+    scaled by `speed`. A test module parametrizes its `rig` over both, the UDP one marked slow (the same exchanges,
+    seconds of real time)."""
+    sims: list[Rig] = []
+
+    def make(
+        transport: str,
+        speed: float = 1.0,
+        footage: str | Path | None = None,
+        sim_config: SimConfig | None = None,
+        **config: Any,
+    ) -> Rig:
+        if transport == "udp":
+            client: MavClient = request.getfixturevalue("client")
+            vt: VehicleThread = request.getfixturevalue("vehicle_factory")(
+                speed=speed, footage=footage, sim_config=sim_config, **config
+            )
+            assert vt.vehicle is not None and vt.endpoint is not None
+
+            def peer(sysid: int, compid: int) -> MavClient:
+                return MavClient(target=vt.api, sysid=sysid, compid=compid)
+
+            return Rig(client, vt.vehicle, vt.endpoint, vt.call, peer)
+        assert transport == "sim", transport
+        rig = sim_rig(speed, footage=footage, sim_config=sim_config, **config)
+        sims.append(rig)
+        return rig
+
+    yield make
+    for rig in sims:
+        rig.vehicle.vehicle.close()
 
 
 @pytest.fixture(autouse=True, scope="session")

@@ -3,6 +3,10 @@
 with VehicleThread(MavlinkConfig(...)) as vt:      # SelftestVehicle + MavlinkEndpoint on their own asyncio loop
     client = MavClient(target=vt.api)
     client.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1)
+
+A `Rig` is either of the two ways a protocol test reaches a vehicle: such a client over UDP with a VehicleThread, or
+a client of the in-memory, sim-clock harness (viva_sitl.mavlink.testing) whose timeouts are scaled to the UDP
+vehicle's speed (conftest's `rig_factory`). One test body then runs over both.
 """
 
 from __future__ import annotations
@@ -23,6 +27,7 @@ from viva_sitl.mavlink.base import MavMessage
 from viva_sitl.mavlink.camera_link import CameraLink
 from viva_sitl.mavlink.config import MavlinkConfig
 from viva_sitl.mavlink.endpoint import MavlinkEndpoint
+from viva_sitl.mavlink.testing import SimClient, SimHarness
 from viva_sitl.selftest import SelftestVehicle
 
 
@@ -197,3 +202,71 @@ class MavClient:
         p = list(params) + [0.0] * (7 - len(params))
         self.send(self.mav.command_long_encode(target_system, target_component, command, 0, *p))
         return self.wait_for(lambda m: m.get_type() == "COMMAND_ACK" and m.command == command, timeout_s)
+
+
+class ScaledSimClient:
+    """A harness client whose timeouts are a UDP test's wall seconds at sim speed `speed`: the same sim-time budget
+    (what a UDP vehicle at that speed flies in `timeout_s` wall seconds), so one test body serves both."""
+
+    def __init__(self, inner: SimClient, speed: float) -> None:
+        self.inner = inner
+        self.speed = speed
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self.inner, name)
+
+    def wait_for(self, predicate: Any, timeout_s: float = 3.0) -> MavMessage | None:
+        return self.inner.wait_for(predicate, timeout_s * self.speed)
+
+    def command(self, command: int, *params: float, timeout_s: float = 1.0, **kw: int) -> MavMessage | None:
+        return self.inner.command(command, *params, timeout_s=timeout_s * self.speed, **kw)
+
+    def poll(self, seconds: float) -> list[MavMessage]:
+        return self.inner.poll(seconds * self.speed)
+
+    def close(self) -> None:
+        """Nothing to close (no socket); MavClient's API."""
+
+
+class Rig:
+    """A MAVLink peer and the vehicle it talks to: `call(fn)` runs fn where the autopilot lives (the vehicle
+    thread's loop over UDP, at once on the harness)."""
+
+    def __init__(
+        self,
+        client: Any,
+        vehicle: SelftestVehicle,
+        endpoint: MavlinkEndpoint,
+        call: Callable[[Callable[[], Any]], Any],
+        peer: Callable[[int, int], Any],
+    ) -> None:
+        self.client = client  # MavClient over UDP, or ScaledSimClient on the harness: the same API
+        self.vehicle = vehicle
+        self.autopilot = vehicle.autopilot
+        self.endpoint = endpoint
+        self.call = call
+        self.peer = (
+            peer  # peer(sysid, compid): another client on the API link, at an address of its own (close it)
+        )
+
+    def stats(self) -> dict[str, Any]:
+        return dict(self.call(lambda: self.endpoint.stats))
+
+
+def sim_rig(
+    speed: float = 1.0,
+    camera: CameraLink | None = None,
+    footage: str | Path | None = None,
+    sim_config: SimConfig | None = None,
+    **config: Any,
+) -> Rig:
+    """The harness over a fresh SelftestVehicle and MavlinkConfig(**config); close with rig.vehicle.vehicle.close()."""
+    sv = SelftestVehicle(sim_config, speed=speed, camera=camera, footage=footage)
+    h = SimHarness(sv, lambda: sv.vehicle.step(1), MavlinkConfig(**config))
+
+    def peer(sysid: int, compid: int) -> ScaledSimClient:
+        return ScaledSimClient(
+            h.client(addr=("127.0.0.1", 41000 + len(h.clients)), sysid=sysid, compid=compid), speed
+        )
+
+    return Rig(ScaledSimClient(h.client(), speed), sv, h.endpoint, lambda fn: fn(), peer)

@@ -61,7 +61,11 @@ def _mode(peer: MavlinkPeer, mode: int, timeout_s: float, what: str) -> Any:
                      what=what)  # fmt: skip
 
 
-@pytest.mark.parametrize("speed", [pytest.param(1.0, marks=pytest.mark.slow), 4.0])  # 1x: ~49 s, 4x: ~13 s
+# 1x: ~49 s, 4x: ~13 s; both slow: the same flow (fence + rally round trip, a mission refused outside the fence,
+# DO_JUMP visits, DO_ORBIT, breach -> RTL to the rally point) runs in the fast tier on the sim-clock harness
+# (test_mavlink_fence.py, `rig` "sim"), and other fast e2e tests start the `viva-sitl run` process
+@pytest.mark.slow
+@pytest.mark.parametrize("speed", [1.0, 4.0])
 def test_fence_rally_do_jump_and_orbit_flown_at_speed(
     sitl_factory: Callable[..., SitlProcess], peer_factory: Callable[[int], MavlinkPeer], speed: float
 ) -> None:

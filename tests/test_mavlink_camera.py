@@ -8,7 +8,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 import pytest
-from mav_client import MavClient, VehicleThread
+from mav_client import MavClient, Rig, VehicleThread
 from pymavlink.dialects.v20 import common as M
 
 from viva_sitl.mavlink import CaptureResult, MavlinkConfig
@@ -129,12 +129,17 @@ def test_image_capture_single_and_interval(
     assert status[0].image_count == 4 and status[0].image_status == 0
 
 
-def test_no_camera_no_component(client: MavClient) -> None:
-    with VehicleThread(_cfg(client)) as vt:
-        client.target = vt.api
-        client.poll(1.5)
-        assert not any(m.get_srcComponent() == CAM for _, m in client.received)
-        assert client.command(M.MAV_CMD_REQUEST_MESSAGE, 259, target_component=CAM, timeout_s=0.5) is None
+@pytest.fixture(params=[pytest.param("udp", marks=pytest.mark.slow), "sim"])
+def camera_less(request: pytest.FixtureRequest, rig_factory: Callable[..., Rig]) -> Rig:
+    """A vehicle without a camera over UDP (slow: 2 s of listening for silence) or on the sim-clock harness."""
+    return rig_factory(request.param)
+
+
+def test_no_camera_no_component(camera_less: Rig) -> None:
+    client = camera_less.client
+    client.poll(1.5)
+    assert not any(m.get_srcComponent() == CAM for _, m in client.received)
+    assert client.command(M.MAV_CMD_REQUEST_MESSAGE, 259, target_component=CAM, timeout_s=0.5) is None
 
 
 class _CaptureOnly:

@@ -1,6 +1,10 @@
 """Geofence and rally plans, DO_ORBIT and DO_JUMP over real UDP with a pymavlink client: upload / download / clear
 per mission type, PX4's MAV_MISSION_* refusals for bad fences, a mission outside the fence refused, the fence
-breach reaction, RTL to the nearest rally point, Orbit mode in HEARTBEAT with ORBIT_EXECUTION_STATUS."""
+breach reaction, RTL to the nearest rally point, Orbit mode in HEARTBEAT with ORBIT_EXECUTION_STATUS.
+
+The tests that take a `rig` run twice: on the in-memory, sim-clock harness (viva_sitl.mavlink.testing; the fast
+tier) and over UDP against a vehicle thread at speed 4 (marked slow: the same exchanges, the socket transport is
+checked by the other tests here in the fast tier)."""
 
 from __future__ import annotations
 
@@ -8,9 +12,10 @@ import math
 import struct
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import pytest
-from mav_client import MavClient, VehicleThread
+from mav_client import MavClient, Rig, VehicleThread
 from pymavlink.dialects.v20 import common as M
 
 from viva_sitl.autopilot import FlightMode
@@ -24,9 +29,17 @@ FENCE, RALLY, MISSION = M.MAV_MISSION_TYPE_FENCE, M.MAV_MISSION_TYPE_RALLY, M.MA
 Item = tuple[int, int, float, float, float, float, int, int, float]  # frame, command, p1..p4, x, y, z
 
 
+SPEED = 4.0  # the UDP vehicle's sim/wall factor; the harness client's sim timeouts are scaled by it to match
+
+
 @pytest.fixture
 def vehicle(vehicle_factory: Callable[..., VehicleThread]) -> VehicleThread:
-    return vehicle_factory(speed=4.0)
+    return vehicle_factory(speed=SPEED)
+
+
+@pytest.fixture(params=[pytest.param("udp", marks=pytest.mark.slow), "sim"])
+def rig(request: pytest.FixtureRequest, rig_factory: Callable[..., Rig]) -> Rig:
+    return rig_factory(request.param, speed=SPEED)
 
 
 def _ll(north: float, east: float) -> tuple[int, int]:
@@ -34,7 +47,7 @@ def _ll(north: float, east: float) -> tuple[int, int]:
     return round(lat * 1e7), round(lon * 1e7)
 
 
-def _upload(client: MavClient, items: list[Item], mtype: int) -> int:
+def _upload(client: Any, items: list[Item], mtype: int) -> int:
     """Answer the vehicle's MISSION_REQUEST_INTs for `mtype`; return the MISSION_ACK type."""
     client.send(client.mav.mission_count_encode(1, 1, len(items), mtype))
     while True:
@@ -48,7 +61,7 @@ def _upload(client: MavClient, items: list[Item], mtype: int) -> int:
                                                        mtype))  # fmt: skip
 
 
-def _download(client: MavClient, mtype: int) -> list[tuple[int, int, float, int, int]]:
+def _download(client: Any, mtype: int) -> list[tuple[int, int, float, int, int]]:
     client.send(client.mav.mission_request_list_encode(1, 1, mtype))
     count = client.wait_for("MISSION_COUNT", 2.0)
     assert count is not None and count.mission_type == mtype
@@ -72,7 +85,7 @@ def _polygon(
 SQUARE = [(-30.0, -30.0), (30.0, -30.0), (30.0, 30.0), (-30.0, 30.0)]
 
 
-def _text(client: MavClient, start: str, timeout_s: float = 2.0) -> str | None:
+def _text(client: Any, start: str, timeout_s: float = 2.0) -> str | None:
     """A STATUSTEXT starting with `start`, already received (it may precede the ACK a helper waited for) or coming."""
     for _, m in client.received:
         if m.get_type() == "STATUSTEXT" and m.text.startswith(start):
@@ -81,7 +94,8 @@ def _text(client: MavClient, start: str, timeout_s: float = 2.0) -> str | None:
     return None if m is None else str(m.text)
 
 
-def test_fence_and_rally_round_trip_per_type_and_clear(client: MavClient, vehicle: VehicleThread) -> None:
+def test_fence_and_rally_round_trip_per_type_and_clear(rig: Rig) -> None:
+    client = rig.client
     fence = _polygon(SQUARE) + [
         (M.MAV_FRAME_GLOBAL_INT, M.MAV_CMD_NAV_FENCE_CIRCLE_EXCLUSION, 5.0, 0, 0, 0, *_ll(10, 10), 0.0),
         (M.MAV_FRAME_GLOBAL_INT, M.MAV_CMD_NAV_FENCE_RETURN_POINT, 0, 0, 0, 0, *_ll(1, 1), 0.0),
@@ -95,12 +109,12 @@ def test_fence_and_rally_round_trip_per_type_and_clear(client: MavClient, vehicl
     assert [(c, p1, x, y) for c, _, p1, x, y in got] == [(f[1], f[2], f[6], f[7]) for f in fence]
     assert [(c, x, y) for c, _, _, x, y in _download(client, RALLY)] == [(r[1], r[6], r[7]) for r in rally]
     assert len(_download(client, MISSION)) == 1  # types stored separately
-    ap = vehicle.vehicle.autopilot  # type: ignore[union-attr]
-    fz = vehicle.call(lambda: ap.geofence)
+    ap = rig.autopilot
+    fz = rig.call(lambda: ap.geofence)
     assert (
         len(fz.polygons) == 1 and len(fz.circles) == 1 and not fz.contains(10.0, 12.0) and fz.contains(-10, 0)
     )
-    assert vehicle.call(lambda: ap.rally_points[0].north_m) == pytest.approx(20.0, abs=0.05)
+    assert rig.call(lambda: ap.rally_points[0].north_m) == pytest.approx(20.0, abs=0.05)
     # clear one type, then all
     client.send(client.mav.mission_clear_all_encode(1, 1, RALLY))
     ack = client.wait_for("MISSION_ACK", 1.0)
@@ -110,10 +124,11 @@ def test_fence_and_rally_round_trip_per_type_and_clear(client: MavClient, vehicl
     ack = client.wait_for("MISSION_ACK", 1.0)
     assert ack is not None and ack.type == M.MAV_MISSION_ACCEPTED
     assert _download(client, FENCE) == [] and _download(client, MISSION) == []
-    assert vehicle.call(lambda: ap.geofence.empty)
+    assert rig.call(lambda: ap.geofence.empty)
 
 
-def test_bad_fences_are_refused_with_px4_codes(client: MavClient, vehicle: VehicleThread) -> None:
+def test_bad_fences_are_refused_with_px4_codes(rig: Rig) -> None:
+    client = rig.client
     good = _polygon(SQUARE)
     assert _upload(client, good, FENCE) == M.MAV_MISSION_ACCEPTED
     bowtie = _polygon([(0.0, 0.0), (20.0, 20.0), (20.0, 0.0), (0.0, 20.0)])
@@ -135,8 +150,8 @@ def test_bad_fences_are_refused_with_px4_codes(client: MavClient, vehicle: Vehic
     assert _upload(client, nan_circle, FENCE) == M.MAV_MISSION_INVALID_PARAM1
     waypoint_in_fence = [(M.MAV_FRAME_GLOBAL_INT, M.MAV_CMD_NAV_WAYPOINT, 0, 0, 0, 0, *_ll(0, 0), 0.0)]
     assert _upload(client, waypoint_in_fence, FENCE) == M.MAV_MISSION_UNSUPPORTED
-    ap = vehicle.vehicle.autopilot  # type: ignore[union-attr]
-    assert vehicle.call(lambda: len(ap.geofence.polygons)) == 1  # every refusal kept the good fence
+    ap = rig.autopilot
+    assert rig.call(lambda: len(ap.geofence.polygons)) == 1  # every refusal kept the good fence
     # a mission with a waypoint outside the fence: PX4's feasibility check text
     out = [(M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, M.MAV_CMD_NAV_WAYPOINT, 0, 0, 0, NAN, *_ll(50, 0), 5.0)]
     assert _upload(client, out, MISSION) == M.MAV_MISSION_DENIED
@@ -170,7 +185,7 @@ def test_zero_radius_circle_at_lat_lon_zero_is_stored_and_contains_nothing(
     assert _upload(client, inside, MISSION) == M.MAV_MISSION_DENIED
 
 
-def _fly_to(client: MavClient, alt_m: float = 6.0) -> None:
+def _fly_to(client: Any, alt_m: float = 6.0) -> None:
     assert client.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1).result == M.MAV_RESULT_ACCEPTED  # type: ignore[union-attr]
     ack = client.command(M.MAV_CMD_NAV_TAKEOFF, NAN, NAN, NAN, NAN, NAN, NAN, 488.0 + alt_m)
     assert ack is not None and ack.result == M.MAV_RESULT_ACCEPTED
@@ -179,7 +194,7 @@ def _fly_to(client: MavClient, alt_m: float = 6.0) -> None:
     assert top is not None
 
 
-def _reposition(client: MavClient, north: float, east: float, alt_rel: float) -> None:
+def _reposition(client: Any, north: float, east: float, alt_rel: float) -> None:
     x, y = _ll(north, east)
     client.send(client.mav.command_int_encode(1, 1, M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, M.MAV_CMD_DO_REPOSITION,
                                               0, 0, -1, 1, 0, NAN, x, y, alt_rel))  # fmt: skip
@@ -187,7 +202,8 @@ def _reposition(client: MavClient, north: float, east: float, alt_rel: float) ->
     assert a is not None and a.result == M.MAV_RESULT_ACCEPTED
 
 
-def test_breach_returns_to_the_nearest_rally_point(client: MavClient, vehicle: VehicleThread) -> None:
+def test_breach_returns_to_the_nearest_rally_point(rig: Rig) -> None:
+    client = rig.client
     gf_return = struct.unpack("<f", struct.pack("<i", 3))[0]  # PX4 INT32 parameters travel bytewise
     client.send(client.mav.param_set_encode(1, 1, b"GF_ACTION", gf_return, M.MAV_PARAM_TYPE_INT32))
     assert client.wait_for(lambda m: m.get_type() == "PARAM_VALUE" and m.param_id == "GF_ACTION", 1.0)
@@ -207,7 +223,8 @@ def test_breach_returns_to_the_nearest_rally_point(client: MavClient, vehicle: V
     assert lp is not None and math.hypot(lp.x - 25.0, lp.y) < 1.0, (lp.x, lp.y)  # the rally point, not home
 
 
-def test_do_orbit_mode_and_execution_status(client: MavClient, vehicle: VehicleThread) -> None:
+def test_do_orbit_mode_and_execution_status(rig: Rig) -> None:
+    client = rig.client
     _fly_to(client)
     x, y = _ll(10.0, 0.0)
     # z is AMSL whatever the frame, as PX4's Orbit task reads it (and MAVSDK sends it)
@@ -236,9 +253,8 @@ def test_do_orbit_mode_and_execution_status(client: MavClient, vehicle: VehicleT
     assert client.wait_for("ORBIT_EXECUTION_STATUS", 1.5) is None
 
 
-def test_mission_with_do_jump_is_flown_with_its_visit_count(
-    client: MavClient, vehicle: VehicleThread
-) -> None:
+def test_mission_with_do_jump_is_flown_with_its_visit_count(rig: Rig) -> None:
+    client = rig.client
     rel = M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT
     items: list[Item] = [
         (rel, M.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, NAN, 0, 0, 4.0),

@@ -8,9 +8,10 @@ import math
 import struct
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import pytest
-from mav_client import MavClient, VehicleThread
+from mav_client import MavClient, Rig, VehicleThread
 from pymavlink.dialects.v20 import common as M
 from test_mavlink_fence import MISSION, _fly_to, _ll, _upload
 
@@ -23,21 +24,25 @@ HOLD, RTL, LAND = (FlightMode.AUTO_LOITER.custom_mode, FlightMode.AUTO_RTL.custo
                    FlightMode.AUTO_LAND.custom_mode)  # fmt: skip
 
 
-@pytest.fixture
-def vehicle(vehicle_factory: Callable[..., VehicleThread], tmp_path: Path) -> VehicleThread:
+def _finite_field(tmp_path: Path) -> Path:
     finite = tmp_path / "finite-synthetic.toml"
     finite.write_text('name = "finite"\nkind = "synthetic"\n[synthetic]\nunbounded = false\n')
-    return vehicle_factory(speed=4.0, footage=finite)
+    return finite
 
 
-def _set_int(client: MavClient, name: str, value: int) -> None:
+@pytest.fixture
+def vehicle(vehicle_factory: Callable[..., VehicleThread], tmp_path: Path) -> VehicleThread:
+    return vehicle_factory(speed=4.0, footage=_finite_field(tmp_path))
+
+
+def _set_int(client: Any, name: str, value: int) -> None:
     wire = struct.unpack("<f", struct.pack("<i", value))[0]  # PX4 INT32 parameters travel bytewise
     client.send(client.mav.param_set_encode(1, 1, name.encode(), wire, M.MAV_PARAM_TYPE_INT32))
     echo = client.wait_for(lambda m: m.get_type() == "PARAM_VALUE" and m.param_id == name, 2.0)
     assert echo is not None and struct.unpack("<i", struct.pack("<f", echo.param_value))[0] == value
 
 
-def _reposition(client: MavClient, north: float, alt_rel: float = 6.0) -> int:
+def _reposition(client: Any, north: float, alt_rel: float = 6.0) -> int:
     x, y = _ll(north, 0.0)
     client.send(client.mav.command_int_encode(1, 1, M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, M.MAV_CMD_DO_REPOSITION,
                                               0, 0, -1, 1, 0, NAN, x, y, alt_rel))  # fmt: skip
@@ -46,7 +51,7 @@ def _reposition(client: MavClient, north: float, alt_rel: float = 6.0) -> int:
     return int(a.result)
 
 
-def _texts(client: MavClient, needle: str) -> list[str]:
+def _texts(client: Any, needle: str) -> list[str]:
     return [m.text for _, m in client.received if m.get_type() == "STATUSTEXT" and needle in m.text.lower()]
 
 
@@ -84,13 +89,15 @@ def test_off_and_warning_fly_beyond_the_footage_land_and_rearm_there(
     assert ack is not None and ack.result == M.MAV_RESULT_DENIED
 
 
-@pytest.mark.parametrize(
-    ("action", "mode"),
-    [(2, HOLD), pytest.param(3, RTL, marks=pytest.mark.slow), pytest.param(5, LAND, marks=pytest.mark.slow)],
-)
-def test_strict_edge_refuses_targets_beyond_and_reacts_to_crossing(
-    client: MavClient, vehicle: VehicleThread, action: int, mode: int
-) -> None:
+@pytest.fixture(params=[pytest.param("udp", marks=pytest.mark.slow), "sim"])
+def rig(request: pytest.FixtureRequest, rig_factory: Callable[..., Rig], tmp_path: Path) -> Rig:
+    """The finite field over UDP at speed 4 (slow: ~9 s a case), or on the sim-clock harness (the fast tier)."""
+    return rig_factory(request.param, speed=4.0, footage=_finite_field(tmp_path))
+
+
+@pytest.mark.parametrize(("action", "mode"), [(2, HOLD), (3, RTL), (5, LAND)])
+def test_strict_edge_refuses_targets_beyond_and_reacts_to_crossing(rig: Rig, action: int, mode: int) -> None:
+    client = rig.client
     _set_int(client, "SIM_FTG_FENCE", action)
     assert _upload(client, _beyond_mission(), MISSION) != M.MAV_MISSION_ACCEPTED
     _fly_to(client)

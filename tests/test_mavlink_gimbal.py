@@ -6,10 +6,11 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 import pytest
-from mav_client import MavClient, VehicleThread
+from mav_client import MavClient, Rig, VehicleThread
 from pymavlink.dialects.v20 import common as mavlink2
 
 from viva_sitl.camera import Mount
@@ -31,7 +32,13 @@ def gimbal_vehicle(vehicle_factory: Callable[..., VehicleThread]) -> VehicleThre
     return vehicle_factory(sim_config=gimbal_config())
 
 
-def view_deg(vt: VehicleThread) -> tuple[float, float]:
+@pytest.fixture(params=[pytest.param("udp", marks=pytest.mark.slow), "sim"])
+def gimbal_rig(request: pytest.FixtureRequest, rig_factory: Callable[..., Rig]) -> Rig:
+    """The gimbal vehicle over UDP in real time (slow: seconds of waiting for streams), or on the sim-clock harness."""
+    return rig_factory(request.param, sim_config=gimbal_config())
+
+
+def view_deg(vt: VehicleThread | Rig) -> tuple[float, float]:
     """(elevation, azimuth from north) of the rendered VAC's optical axis, in degrees, from the frame's metadata."""
 
     def render() -> tuple[tuple[tuple[float, ...], ...], tuple[float, float, float]]:
@@ -44,7 +51,7 @@ def view_deg(vt: VehicleThread) -> tuple[float, float]:
     return math.degrees(-math.asin(float(axis[2]))), math.degrees(math.atan2(float(axis[1]), float(axis[0])))
 
 
-def said(client: MavClient, text: str, timeout_s: float = 2.0) -> str | None:
+def said(client: Any, text: str, timeout_s: float = 2.0) -> str | None:
     """A STATUSTEXT containing `text` received so far or within timeout_s (it may precede the COMMAND_ACK)."""
     for _, m in client.received:
         if m.get_type() == "STATUSTEXT" and text in m.text:
@@ -53,12 +60,12 @@ def said(client: MavClient, text: str, timeout_s: float = 2.0) -> str | None:
     return None if m is None else str(m.text)
 
 
-def take_control(client: MavClient) -> None:
+def take_control(client: Any) -> None:
     ack = client.command(M.MAV_CMD_DO_GIMBAL_MANAGER_CONFIGURE, 255, 190, -1, -1, 0, 0, 0)
     assert ack is not None and ack.result == ACCEPTED
 
 
-def pitchyaw(client: MavClient, pitch: float, yaw: float, flags: int = 0) -> int:
+def pitchyaw(client: Any, pitch: float, yaw: float, flags: int = 0) -> int:
     ack = client.command(M.MAV_CMD_DO_GIMBAL_MANAGER_PITCHYAW, pitch, yaw, math.nan, math.nan, flags, 0, 0)
     assert ack is not None
     return int(ack.result)
@@ -71,8 +78,8 @@ def test_fixed_mount_has_no_gimbal(vehicle_factory: Callable[..., VehicleThread]
     assert pitchyaw(client, -45, 0) == UNSUPPORTED
 
 
-def test_discovery_control_and_pointing(gimbal_vehicle: VehicleThread, client: MavClient) -> None:
-    vt = gimbal_vehicle
+def test_discovery_control_and_pointing(gimbal_rig: Rig) -> None:
+    vt, client = gimbal_rig, gimbal_rig.client
     assert view_deg(vt)[0] == pytest.approx(-90.0, abs=1e-6)  # at rest: the nadir mount
     ack = client.command(M.MAV_CMD_REQUEST_MESSAGE, M.MAVLINK_MSG_ID_GIMBAL_MANAGER_INFORMATION)
     assert ack is not None and ack.result == ACCEPTED
@@ -123,8 +130,8 @@ def test_discovery_control_and_pointing(gimbal_vehicle: VehicleThread, client: M
     assert pitchyaw(client, -30, 0) == DENIED
 
 
-def test_out_of_range_and_bad_input(gimbal_vehicle: VehicleThread, client: MavClient) -> None:
-    vt = gimbal_vehicle
+def test_out_of_range_and_bad_input(gimbal_rig: Rig) -> None:
+    vt, client = gimbal_rig, gimbal_rig.client
     take_control(client)
     client.drain()
     # out of range: clamped to the advertised limits (PX4 saturates), accepted, and said
@@ -140,7 +147,7 @@ def test_out_of_range_and_bad_input(gimbal_vehicle: VehicleThread, client: MavCl
     assert elevation == pytest.approx(30, abs=0.01)
     assert (azimuth - yaw0 - 10 + 180) % 360 - 180 == pytest.approx(0, abs=0.01)
     # GIMBAL_MANAGER_SET_ATTITUDE from someone not in control: ignored, with a warning
-    other = MavClient(target=vt.api, sysid=42, compid=190)
+    other = vt.peer(42, 190)
     try:
         q = [math.cos(math.radians(-10)), 0.0, math.sin(math.radians(-10)), 0.0]  # pitch -20
         other.send(M.MAVLink_gimbal_manager_set_attitude_message(1, 1, 0, 0, q, math.nan, math.nan, math.nan))

@@ -1,15 +1,19 @@
 """Protocol tests on the in-memory, sim-clock harness (viva_sitl.mavlink.testing): the real MavlinkEndpoint (links,
 dispatch, schedule, concern modules) and the real Autopilot + EAV dynamics, with no socket, thread or sleep.
 
-Ports of socket tests in test_mavlink_protocol.py and test_mavlink_mission.py (which stay, as the e2e check of the
-UDP transport): the same exchanges, with timeouts in simulated seconds, so rates and retries are exact counts.
-"""
+Ports of socket tests in test_mavlink_protocol.py, test_mavlink_mission.py, test_mavlink_logs.py and
+test_mavlink_io.py (which stay, marked slow; the other socket tests there check the UDP transport in the fast tier):
+the same exchanges, with timeouts in simulated seconds, so rates and retries are exact counts. Other protocol tests
+run one body over both (conftest's `rig_factory`)."""
 
 from __future__ import annotations
 
+import hashlib
 import math
 import struct
+import time
 from collections.abc import Iterator
+from pathlib import Path
 
 import pytest
 from pymavlink.dialects.v20 import common as M
@@ -384,5 +388,138 @@ def test_mission_upload_timeout_retries_then_cancels() -> None:
         assert any(m.get_type() == "HEARTBEAT" for _, m in client.received)
         assert h.endpoint.mission.upload is None
         assert h.endpoint.stats["mission_uploads_failed"] == 1
+    finally:
+        h.vehicle.vehicle.close()  # type: ignore[attr-defined]
+
+
+# --- ports of test_mavlink_logs.py ----------------------------------------------------------------------------
+
+
+def _ask(
+    client: SimClient, request: M.MAVLink_message, kind: str, sim_s: float = 0.5
+) -> list[M.MAVLink_message]:
+    """Send `request`; the messages of `kind` answered within `sim_s` simulated seconds (at once, or streamed; the
+    UDP test waits for 0.5 wall s of quiet)."""
+    n = len(client.received)
+    client.send(request)
+    client.poll(sim_s)
+    return [m for _, m in client.received[n:] if m.get_type() == kind]
+
+
+def _log_download(client: SimClient, log_id: int, size: int) -> bytes:
+    data = bytearray()
+    for msg in _ask(client, client.mav.log_request_data_encode(1, 1, log_id, 0, size), "LOG_DATA"):
+        assert msg.id == log_id and msg.ofs == len(data), (msg.ofs, len(data))
+        data += bytes(msg.data[: msg.count])
+    return bytes(data)
+
+
+def test_list_and_download_logs_and_the_bad_requests_px4_ignores(
+    harness: SimHarness, client: SimClient, tmp_path: Path
+) -> None:
+    old = tmp_path / "old.ulg"
+    old.write_bytes(bytes(range(256)) * 3 + b"tail")  # 772 bytes: 8 full LOG_DATA and a short one
+    cur = tmp_path / "log.ulg"
+    cur.write_bytes(b"ULog" * 50)
+    files = [(old, False), (cur, True)]
+    harness.endpoint.logs.set_source(lambda: list(files))
+
+    # before any list: PX4 does not answer
+    assert _ask(client, client.mav.log_request_data_encode(1, 1, 0, 0, 100), "LOG_DATA") == []
+
+    entries = _ask(client, client.mav.log_request_list_encode(1, 1, 0, 0xFFFF), "LOG_ENTRY")
+    assert [(e.id, e.num_logs, e.last_log_num, e.size) for e in entries] == [(0, 2, 1, 772), (1, 2, 1, 200)]
+    assert abs(entries[0].time_utc - old.stat().st_mtime) <= 1
+
+    assert _log_download(client, 0, 772) == old.read_bytes()
+    assert _log_download(client, 1, 0xFFFFFFFF) == cur.read_bytes()
+
+    # a part of a log, from an offset
+    parts = _ask(client, client.mav.log_request_data_encode(1, 1, 0, 180, 100), "LOG_DATA")
+    assert [(m.ofs, m.count) for m in parts] == [(180, 90), (270, 10)]
+    assert bytes(parts[0].data[:90]) + bytes(parts[1].data[:10]) == old.read_bytes()[180:280]
+
+    # past the end: one LOG_DATA with count 0 at the offset (PX4)
+    assert [
+        (m.id, m.ofs, m.count)
+        for m in _ask(client, client.mav.log_request_data_encode(1, 1, 0, 5000, 90), "LOG_DATA")
+    ] == [(0, 5000, 0)]
+
+    # unknown id: no answer (PX4)
+    assert _ask(client, client.mav.log_request_data_encode(1, 1, 7, 0, 90), "LOG_DATA") == []
+
+    # the log being written grows: a new list shows its new size
+    cur.write_bytes(b"ULog" * 60)
+    assert [
+        e.size for e in _ask(client, client.mav.log_request_list_encode(1, 1, 0, 0xFFFF), "LOG_ENTRY")
+    ] == [772, 240]
+
+    # a range of the list
+    assert [
+        (e.id, e.num_logs, e.last_log_num)
+        for e in _ask(client, client.mav.log_request_list_encode(1, 1, 1, 1), "LOG_ENTRY")
+    ] == [(1, 2, 1)]
+
+    # LOG_REQUEST_END forgets the list: data requests go unanswered until the next list
+    client.send(client.mav.log_request_end_encode(1, 1))
+    assert _ask(client, client.mav.log_request_data_encode(1, 1, 0, 0, 90), "LOG_DATA") == []
+    assert harness.endpoint.stats["handler_errors"] == 0
+
+
+# --- ports of test_mavlink_io.py ------------------------------------------------------------------------------
+
+KEY_HEX = "00112233445566778899aabbccddeeff00112233445566778899aabbccddeeff"
+
+
+def _sign(client: SimClient, key: bytes) -> None:
+    """Make the client a signing MAVLink 2 peer (pymavlink's own signing)."""
+    client.mav.signing.secret_key = key
+    client.mav.signing.sign_outgoing = True
+    client.mav.signing.link_id = 1
+    client.mav.signing.timestamp = int((time.time() - 1420070400) * 100_000)
+
+
+def test_signing_accepts_signed_client_rejects_unsigned() -> None:
+    key = bytes.fromhex(KEY_HEX)
+    h = _harness(signing_key=KEY_HEX)
+    try:
+        signed = h.client()  # the API link's remote
+        unsigned = h.client(addr=("127.0.0.1", 40001))
+        _sign(signed, key)
+        # a signed client is served...
+        signed.send(signed.mav.param_request_read_encode(1, 1, b"COM_DL_LOSS_T", -1))
+        assert signed.wait_for(lambda m: m.get_type() == "PARAM_VALUE" and m.param_id == "COM_DL_LOSS_T", 2.0)
+        ack = signed.command(M.MAV_CMD_REQUEST_MESSAGE, M.MAVLINK_MSG_ID_AUTOPILOT_VERSION)
+        assert ack is not None and ack.result == M.MAV_RESULT_ACCEPTED
+        # ...and what the vehicle sends is signed with the key (the checker's parser verifies it)
+        checker = M.MAVLink(None)
+        checker.signing.secret_key = key
+        hb = signed.wait_for("HEARTBEAT", 3.0)
+        assert hb is not None
+        frame = bytes(hb.get_msgbuf())
+        assert frame[2] & M.MAVLINK_IFLAG_SIGNED
+        assert checker.parse_char(frame).get_type() == "HEARTBEAT"  # raises on a bad signature
+        before = h.endpoint.stats["unsigned_rejected"]
+        # an unsigned client is not: no answer, counted
+        assert (
+            unsigned.command(M.MAV_CMD_REQUEST_MESSAGE, M.MAVLINK_MSG_ID_AUTOPILOT_VERSION, timeout_s=1.5)
+            is None
+        )
+        unsigned.send(unsigned.mav.param_request_read_encode(1, 1, b"COM_DL_LOSS_T", -1))
+        # a client signing with another key neither
+        wrong = h.client(addr=("127.0.0.1", 40002))
+        _sign(wrong, hashlib.sha256(b"not the key").digest())
+        assert (
+            wrong.command(M.MAV_CMD_REQUEST_MESSAGE, M.MAVLINK_MSG_ID_AUTOPILOT_VERSION, timeout_s=1.5)
+            is None
+        )
+        # RADIO_STATUS is one of the messages PX4 accepts unsigned
+        unsigned.send(unsigned.mav.radio_status_encode(200, 190, 100, 90, 80, 0, 0))
+        signed.poll(0.3)
+        stats = h.endpoint.stats
+        assert stats["unsigned_rejected"] - before == 3
+        assert stats["commands"] == 1  # only the signed client's command reached a handler
+        assert stats["signing"] == {"key_set": True, "sign_cfg": 1}
+        assert not any(m.get_type() == "COMMAND_ACK" for _, m in unsigned.received)
     finally:
         h.vehicle.vehicle.close()  # type: ignore[attr-defined]

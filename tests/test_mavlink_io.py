@@ -86,6 +86,7 @@ def test_tlog_records_both_directions_readable_by_pymavlink(client: MavClient, t
 
 
 # --- signing ---------------------------------------------------------------------------------------------
+@pytest.mark.slow  # ported to the sim-clock harness: test_mavlink_harness.py (same name)
 def test_signing_accepts_signed_client_rejects_unsigned(tmp_path: Path) -> None:
     key = bytes.fromhex(KEY_HEX)
     signed, unsigned = MavClient(), MavClient()

@@ -65,6 +65,7 @@ def test_no_logs_is_one_entry_with_num_logs_0(vehicle: VehicleThread, master: ma
     assert [(e.id, e.num_logs, e.last_log_num, e.size) for e in entries] == [(0, 0, 0, 0)]
 
 
+@pytest.mark.slow  # ported to the sim-clock harness: test_mavlink_harness.py (same name)
 def test_list_and_download_logs_and_the_bad_requests_px4_ignores(
     vehicle: VehicleThread, master: mavutil.mavfile, tmp_path: Path
 ) -> None:

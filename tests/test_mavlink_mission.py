@@ -7,7 +7,7 @@ import math
 from collections.abc import Callable
 
 import pytest
-from mav_client import MavClient, VehicleThread
+from mav_client import MavClient, Rig, VehicleThread
 from pymavlink.dialects.v20 import common as M
 
 from viva_sitl.geo import GeoOrigin
@@ -77,6 +77,7 @@ def _same(a: float, b: float) -> bool:
     return (math.isnan(a) and math.isnan(b)) or a == pytest.approx(b)
 
 
+@pytest.mark.slow  # ported to the sim-clock harness: test_mavlink_harness.py::test_mission_upload_download_clear_round_trip
 def test_upload_download_clear_round_trip(client: MavClient, vehicle: VehicleThread) -> None:
     items = _items()
     assert _upload(client, items) == M.MAV_MISSION_ACCEPTED
@@ -163,6 +164,7 @@ def test_out_of_order_and_duplicate_items(client: MavClient, vehicle: VehicleThr
     assert ack is not None and ack.type == M.MAV_MISSION_ACCEPTED
 
 
+@pytest.mark.slow  # ported to the sim-clock harness: test_mavlink_harness.py::test_mission_upload_timeout_retries_then_cancels
 def test_upload_timeout_retries_then_cancels(
     client: MavClient, vehicle_factory: Callable[..., VehicleThread]
 ) -> None:
@@ -195,31 +197,30 @@ def test_float_mission_items_accepted(client: MavClient, vehicle: VehicleThread)
     assert it.down_m == pytest.approx(-7.0, abs=0.05)
 
 
-def test_mission_flown_reports_items_reached(
-    client: MavClient, vehicle_factory: Callable[..., VehicleThread]
-) -> None:
-    vt = vehicle_factory(speed=4.0)
-    try:
-        items = _items()
-        assert _upload(client, items) == M.MAV_MISSION_ACCEPTED
-        assert client.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1).result == M.MAV_RESULT_ACCEPTED  # type: ignore[union-attr]
-        ack = client.command(M.MAV_CMD_MISSION_START, 0, 0)
-        assert ack is not None and ack.result == M.MAV_RESULT_ACCEPTED
-        reached = set()
-        landed = None
-        for _ in range(4000):
-            msg = client.wait_for(
-                lambda m: m.get_type() in ("MISSION_ITEM_REACHED", "EXTENDED_SYS_STATE"), 15.0
-            )
-            assert msg is not None, f"mission stalled; reached {sorted(reached)}"
-            if msg.get_type() == "MISSION_ITEM_REACHED":
-                reached.add(msg.seq)
-            elif msg.landed_state == 1 and 4 in reached:
-                landed = msg
-                break
-        assert landed is not None and {1, 3, 4} <= reached
-        lp = client.wait_for("LOCAL_POSITION_NED", 1.0)
-        assert lp is not None and (lp.x, lp.y) == pytest.approx((12.0, -3.0), abs=1.0)
-        assert any(m.get_type() == "MISSION_CURRENT" and m.seq >= 3 for _, m in client.received)
-    finally:
-        vt.stop()
+@pytest.fixture(params=[pytest.param("udp", marks=pytest.mark.slow), "sim"])
+def rig4(request: pytest.FixtureRequest, rig_factory: Callable[..., Rig]) -> Rig:
+    """Over UDP at speed 4 (slow: a flight in real time), or on the sim-clock harness (the fast tier)."""
+    return rig_factory(request.param, speed=4.0)
+
+
+def test_mission_flown_reports_items_reached(rig4: Rig) -> None:
+    client = rig4.client
+    items = _items()
+    assert _upload(client, items) == M.MAV_MISSION_ACCEPTED
+    assert client.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1).result == M.MAV_RESULT_ACCEPTED  # type: ignore[union-attr]
+    ack = client.command(M.MAV_CMD_MISSION_START, 0, 0)
+    assert ack is not None and ack.result == M.MAV_RESULT_ACCEPTED
+    reached = set()
+    landed = None
+    for _ in range(4000):
+        msg = client.wait_for(lambda m: m.get_type() in ("MISSION_ITEM_REACHED", "EXTENDED_SYS_STATE"), 15.0)
+        assert msg is not None, f"mission stalled; reached {sorted(reached)}"
+        if msg.get_type() == "MISSION_ITEM_REACHED":
+            reached.add(msg.seq)
+        elif msg.landed_state == 1 and 4 in reached:
+            landed = msg
+            break
+    assert landed is not None and {1, 3, 4} <= reached
+    lp = client.wait_for("LOCAL_POSITION_NED", 1.0)
+    assert lp is not None and (lp.x, lp.y) == pytest.approx((12.0, -3.0), abs=1.0)
+    assert any(m.get_type() == "MISSION_CURRENT" and m.seq >= 3 for _, m in client.received)

@@ -5,9 +5,10 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
+from typing import Any
 
 import pytest
-from mav_client import MavClient, VehicleThread
+from mav_client import Rig
 from pymavlink.dialects.v20 import common as M
 
 from viva_sitl.autopilot import FlightMode, OffboardFrame
@@ -133,8 +134,10 @@ def test_manual_control_normalised() -> None:
 # --- over UDP ----------------------------------------------------------------------------------------------------
 
 
-@pytest.fixture
-def vehicle(vehicle_factory: Callable[..., VehicleThread]) -> VehicleThread:
+@pytest.fixture(params=[pytest.param("udp", marks=pytest.mark.slow), "sim"])
+def rig(request: pytest.FixtureRequest, rig_factory: Callable[..., Rig]) -> Rig:
+    """Over UDP at speed 3 (slow: ~5 s of wall-clock streaming a flight), or on the sim-clock harness with the
+    client's timeouts and stream periods scaled by 3: the same setpoint stream in sim time (the fast tier)."""
     # Telemetry runs per sim second (3x the wall rate here) and this client shares the process (GIL) with the
     # vehicle: only the streams these tests read, so the client keeps up and its setpoint stream stays regular.
     rates = (
@@ -143,16 +146,16 @@ def vehicle(vehicle_factory: Callable[..., VehicleThread]) -> VehicleThread:
         ("GLOBAL_POSITION_INT", 5.0),
         ("ALTITUDE", 0.0),
     )
-    return vehicle_factory(speed=3.0, rate_overrides=rates)
+    return rig_factory(request.param, speed=3.0, rate_overrides=rates)
 
 
-def _stream(client: MavClient, msg: M.MAVLink_message, seconds: float, hz: float = 20.0) -> None:
+def _stream(client: Any, msg: M.MAVLink_message, seconds: float, hz: float = 20.0) -> None:
     for _ in range(int(seconds * hz)):
         client.send(msg)
         client.poll(1.0 / hz)
 
 
-def _stream_until(client: MavClient, msg: M.MAVLink_message, pred: Callable[[M.MAVLink_message], bool],
+def _stream_until(client: Any, msg: M.MAVLink_message, pred: Callable[[M.MAVLink_message], bool],
                   timeout_s: float = 2.0, hz: float = 20.0) -> M.MAVLink_message | None:  # fmt: skip
     """Keep the setpoint stream going (PX4 leaves offboard after COM_OF_LOSS_T without it) while waiting."""
     client.drain()
@@ -164,9 +167,8 @@ def _stream_until(client: MavClient, msg: M.MAVLink_message, pred: Callable[[M.M
     return None
 
 
-def test_offboard_refused_without_stream_then_position_and_velocity(
-    client: MavClient, vehicle: VehicleThread
-) -> None:
+def test_offboard_refused_without_stream_then_position_and_velocity(rig: Rig) -> None:
+    client = rig.client
     mav = client.mav
     ack = client.command(M.MAV_CMD_DO_SET_MODE, 1, 6, 0)
     assert ack is not None and ack.result == M.MAV_RESULT_TEMPORARILY_REJECTED
@@ -192,13 +194,14 @@ def test_offboard_refused_without_stream_then_position_and_velocity(
     hb = client.wait_for(lambda m: m.get_type() == "HEARTBEAT" and m.get_srcComponent() == 1
                          and m.custom_mode != FlightMode.OFFBOARD.custom_mode, 3.0)  # fmt: skip
     assert hb is not None
-    st = vehicle.stats()
+    st = rig.stats()
     assert st["setpoints_handled"] >= 80 and st["setpoints_rejected"] == 0
 
 
-def test_offboard_attitude_thrust_hover_and_climb(client: MavClient, vehicle: VehicleThread) -> None:
+def test_offboard_attitude_thrust_hover_and_climb(rig: Rig) -> None:
+    client = rig.client
     mav = client.mav
-    hover = vehicle.call(lambda: vehicle.vehicle.params.get("MPC_THR_HOVER"))
+    hover = rig.call(lambda: rig.vehicle.params.get("MPC_THR_HOVER"))
     climb = mav.set_attitude_target_encode(0, 1, 1, 7, [1, 0, 0, 0], 0, 0, 0, min(1.0, hover + 0.15))
     _stream(client, climb, 1.0)
     assert client.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1).result == M.MAV_RESULT_ACCEPTED  # type: ignore[union-attr]

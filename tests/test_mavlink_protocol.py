@@ -10,9 +10,10 @@ import subprocess
 import time
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import pytest
-from mav_client import MavClient, VehicleThread
+from mav_client import MavClient, Rig, VehicleThread
 from pymavlink.dialects.v20 import common as M
 
 import viva_sitl
@@ -39,6 +40,18 @@ def vehicle(vehicle_factory: Callable[..., VehicleThread], tmp_path: Path) -> Ve
 def fast_vehicle(vehicle_factory: Callable[..., VehicleThread]) -> VehicleThread:
     """Sim time 4x wall time: flights take seconds."""
     return vehicle_factory(speed=4.0)
+
+
+@pytest.fixture(params=[pytest.param("udp", marks=pytest.mark.slow), "sim"])
+def rig(request: pytest.FixtureRequest, rig_factory: Callable[..., Rig]) -> Rig:
+    """Over UDP in real time (slow: seconds of streams), or on the sim-clock harness (the fast tier)."""
+    return rig_factory(request.param)
+
+
+@pytest.fixture(params=[pytest.param("udp", marks=pytest.mark.slow), "sim"])
+def fast_rig(request: pytest.FixtureRequest, rig_factory: Callable[..., Rig]) -> Rig:
+    """Over UDP at speed 4 (slow: a flight in real time), or on the sim-clock harness (the fast tier)."""
+    return rig_factory(request.param, speed=4.0)
 
 
 def _autopilot_hb(m: M.MAVLink_message) -> bool:
@@ -199,6 +212,7 @@ def _float_as_int(f: float) -> int:
     return int(struct.unpack("<i", struct.pack("<f", f))[0])
 
 
+@pytest.mark.slow  # ported to the sim-clock harness: test_mavlink_harness.py::test_param_set_float_and_int32_bytewise
 def test_param_set_float_and_int32_bytewise(client: MavClient, vehicle: VehicleThread) -> None:
     client.send(client.mav.param_set_encode(1, 1, b"MIS_TAKEOFF_ALT", 5.5, M.MAV_PARAM_TYPE_REAL32))
     pv = client.wait_for(lambda m: m.get_type() == "PARAM_VALUE" and m.param_id == "MIS_TAKEOFF_ALT", 1.0)
@@ -222,6 +236,7 @@ def test_param_set_float_and_int32_bytewise(client: MavClient, vehicle: VehicleT
     assert pv is not None and pv.param_id == "MIS_TAKEOFF_ALT" and pv.param_value == pytest.approx(5.5)
 
 
+@pytest.mark.slow  # ported to the sim-clock harness: test_mavlink_harness.py::test_param_rejections_as_px4
 def test_param_rejections_as_px4(client: MavClient, vehicle: VehicleThread) -> None:
     # unknown name: no PARAM_VALUE, a STATUSTEXT (PX4: "[pm] unknown param")
     client.send(client.mav.param_set_encode(1, 1, b"NO_SUCH_PARAM", 1.0, M.MAV_PARAM_TYPE_REAL32))
@@ -264,7 +279,7 @@ def test_param_rejections_as_px4(client: MavClient, vehicle: VehicleThread) -> N
 # --- streams --------------------------------------------------------------------------------------------------
 
 
-def _rate(client: MavClient, msg_type: str, seconds: float) -> float:
+def _rate(client: Any, msg_type: str, seconds: float) -> float:
     client.received.clear()
     client.poll(seconds)
     times = [t for t, m in client.received if m.get_type() == msg_type]
@@ -273,6 +288,7 @@ def _rate(client: MavClient, msg_type: str, seconds: float) -> float:
     return (len(times) - 1) / (times[-1] - times[0])
 
 
+@pytest.mark.slow  # ported to the sim-clock harness: test_mavlink_harness.py::test_default_rates_and_set_message_interval
 def test_default_rates_and_set_message_interval(client: MavClient, vehicle: VehicleThread) -> None:
     client.poll(0.3)
     assert _rate(client, "ATTITUDE", 1.5) == pytest.approx(100.0, rel=0.3)
@@ -301,6 +317,7 @@ def test_default_rates_and_set_message_interval(client: MavClient, vehicle: Vehi
     assert mi is not None and mi.message_id == M.MAVLINK_MSG_ID_ATTITUDE and mi.interval_us == 10_000
 
 
+@pytest.mark.slow  # ported to the sim-clock harness: test_mavlink_harness.py::test_ping_and_timesync_answered
 def test_ping_and_timesync_answered(client: MavClient, vehicle: VehicleThread) -> None:
     client.send(client.mav.ping_encode(123456789, 42, 0, 0))
     ping = client.wait_for("PING", 1.0)
@@ -349,6 +366,7 @@ def test_gcs_link_normal_profile_option(client: MavClient) -> None:
 # --- commands -------------------------------------------------------------------------------------------------
 
 
+@pytest.mark.slow  # ported to the sim-clock harness: test_mavlink_harness.py::test_every_command_is_acked
 def test_every_command_is_acked(client: MavClient, vehicle: VehicleThread) -> None:
     def ack(cmd: int, *p: float, **kw: int) -> int:
         a = client.command(cmd, *p, timeout_s=0.5, **kw)
@@ -435,9 +453,8 @@ def test_arm_takeoff_land_seen_in_telemetry(client: MavClient, fast_vehicle: Veh
     assert any("Landing detected" in t for t in texts), texts
 
 
-def test_takeoff_amsl_altitude_then_reposition_command_int(
-    client: MavClient, fast_vehicle: VehicleThread
-) -> None:
+def test_takeoff_amsl_altitude_then_reposition_command_int(fast_rig: Rig) -> None:
+    client = fast_rig.client
     assert client.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1).result == M.MAV_RESULT_ACCEPTED  # type: ignore[union-attr]
     # COMMAND_LONG NAV_TAKEOFF param7 is AMSL (PX4): home 488 m + 4.5 m
     ack = client.command(M.MAV_CMD_NAV_TAKEOFF, NAN, NAN, NAN, NAN, NAN, NAN, 488.0 + 4.5)
@@ -447,7 +464,7 @@ def test_takeoff_amsl_altitude_then_reposition_command_int(
     assert client.wait_for(lambda m: m.get_type() == "EXTENDED_SYS_STATE" and m.landed_state == 2, 3.0)
     lp = client.wait_for("LOCAL_POSITION_NED", 1.0)
     assert lp is not None and lp.z == pytest.approx(-4.5, abs=0.3)
-    geo = fast_vehicle.call(lambda: fast_vehicle.vehicle.geo)
+    geo = fast_rig.call(lambda: fast_rig.vehicle.geo)
     lat, lon, _ = geo.ned_to_global(8.0, -4.0, 0.0)
     client.send(client.mav.command_int_encode(
         1, 1, M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, M.MAV_CMD_DO_REPOSITION, 0, 0,
@@ -467,9 +484,10 @@ def test_takeoff_amsl_altitude_then_reposition_command_int(
     assert lp is not None, "did not reach the DO_REPOSITION target (8, -4, -4)"
 
 
-def test_highres_imu_on_request_as_mavsdk_set_rate_imu(client: MavClient, vehicle: VehicleThread) -> None:
+def test_highres_imu_on_request_as_mavsdk_set_rate_imu(rig: Rig) -> None:
     """MAVSDK's telemetry.set_rate_imu (its highres_imu example) sends SET_MESSAGE_INTERVAL(HIGHRES_IMU): PX4 streams
     it; a vehicle at rest on the ground reads -g on the accelerometer's z, no rotation, ISA pressure at home."""
+    client = rig.client
     client.poll(0.3)
     assert _rate(client, "HIGHRES_IMU", 0.5) == 0.0  # not in the default streams
     ack = client.command(M.MAV_CMD_SET_MESSAGE_INTERVAL, M.MAVLINK_MSG_ID_HIGHRES_IMU, 20_000)

@@ -9,7 +9,7 @@ from collections.abc import Callable
 
 import numpy as np
 import pytest
-from mav_client import MavClient, VehicleThread
+from mav_client import MavClient, Rig, VehicleThread
 from pymavlink.dialects.v20 import common as M
 
 NAN, INF = math.nan, math.inf
@@ -68,7 +68,14 @@ def test_parser_resyncs_within_and_across_datagrams(client: MavClient, vehicle: 
     assert st["handler_errors"] == 0
 
 
-def test_garbage_nan_and_absurd_input_keep_vehicle_alive(client: MavClient, vehicle: VehicleThread) -> None:
+@pytest.fixture(params=[pytest.param("udp", marks=pytest.mark.slow), "sim"])
+def rig(request: pytest.FixtureRequest, rig_factory: Callable[..., Rig]) -> Rig:
+    """Over UDP at speed 2 (slow: seconds of streaming and waiting), or on the sim-clock harness (the fast tier)."""
+    return rig_factory(request.param, speed=2.0)
+
+
+def test_garbage_nan_and_absurd_input_keep_vehicle_alive(rig: Rig) -> None:
+    client = rig.client
     mav = client.mav
     rng = np.random.default_rng(1)
     # raw garbage, a datagram full of start markers, an unknown message id, an empty datagram
@@ -153,17 +160,16 @@ def test_garbage_nan_and_absurd_input_keep_vehicle_alive(client: MavClient, vehi
     assert "ATTITUDE" in types and "GLOBAL_POSITION_INT" in types
     client.send(mav.ping_encode(1, 99, 0, 0))
     assert _answered(client, 99)
-    st = vehicle.stats()
+    st = rig.stats()
     assert st["handler_errors"] == 0, st
     assert st["unknown_messages"] >= 1 and st["bad_frames"] >= 1
     assert st["setpoints_rejected"] >= 10
-    state = vehicle.call(lambda: vehicle.vehicle.state)
+    state = rig.call(lambda: rig.vehicle.state)
     assert np.all(np.isfinite(state.pos_ned_m)) and np.all(np.isfinite(state.att_rpy_rad))
 
 
-def test_nan_setpoints_in_offboard_flight_keep_state_finite(
-    client: MavClient, vehicle: VehicleThread
-) -> None:
+def test_nan_setpoints_in_offboard_flight_keep_state_finite(rig: Rig) -> None:
+    client = rig.client
     mav = client.mav
 
     def sp(x: float, y: float, z: float) -> M.MAVLink_message:
@@ -182,5 +188,5 @@ def test_nan_setpoints_in_offboard_flight_keep_state_finite(
     lp = client.wait_for("LOCAL_POSITION_NED", 1.0)
     assert lp is not None and all(math.isfinite(v) for v in (lp.x, lp.y, lp.z, lp.vx, lp.vy, lp.vz))
     assert lp.z < -0.5, "the valid setpoints (z = -2) were not followed"
-    st = vehicle.stats()
+    st = rig.stats()
     assert st["setpoints_rejected"] >= 50 and st["setpoints_handled"] >= 80 and st["handler_errors"] == 0

@@ -96,12 +96,19 @@ def _same(cell: str, v: object) -> bool:
 
 
 @pytest.fixture(scope="module")
-def runs(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
+def oracle_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A real 2-trial run of the oracle pilot on the synthetic field (B of `runs`; alone for the fast tier)."""
+    out = tmp_path_factory.mktemp("runs") / "oracle"
+    _run(SPEC, "oracle", out)
+    return out
+
+
+@pytest.fixture(scope="module")
+def runs(oracle_run: Path, tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
     """Two real 2-trial runs on the same scenarios of the synthetic field: descend (A) and oracle (B)."""
-    d = tmp_path_factory.mktemp("runs")
-    _run(SPEC, "descend", d / "descend")
-    _run(SPEC, "oracle", d / "oracle")
-    return d / "descend", d / "oracle"
+    a_dir = tmp_path_factory.mktemp("runs") / "descend"
+    _run(SPEC, "descend", a_dir)
+    return a_dir, oracle_run
 
 
 @pytest.mark.slow  # two real campaigns
@@ -257,7 +264,7 @@ def test_without_ground_truth_object_distances_are_unavailable_not_zero(
     assert all(p[OBJ[1]] == "— / — / —" for p in page.records("pairs"))
 
 
-def test_report_success_intervals_counts_and_risk_distribution(runs: tuple[Path, Path]) -> None:
+def test_report_success_intervals_counts_and_risk_distribution(oracle_run: Path) -> None:
     """The success line gives both 95 % intervals in one format (percent, "a–b %"), counts as counts ("Landed: k
     of n trials"), a per-check table with the n/a count; the risk level is a distribution (trials per level and
     the median), never a mean with an interval."""
@@ -265,7 +272,7 @@ def test_report_success_intervals_counts_and_risk_distribution(runs: tuple[Path,
 
     from viva_sitl.evaluation.report import render_html
 
-    _, b_dir = runs
+    b_dir = oracle_run
     doc = json.loads((b_dir / "results.json").read_text())
     text = (b_dir / "report.html").read_text()
     para = re.search(r"<p id='success'>(.*?)</p>", text, re.S)

@@ -48,6 +48,21 @@ def token_segmenter(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return d / "unet.pt"
 
 
+@pytest.fixture(scope="module")
+def untrained_segmenter(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A loadable risk U-Net checkpoint with initial weights: enough for the bad-input lines, which stop before the
+    first frame is segmented (the trained `token_segmenter` costs a dataset export and 20 epochs in subprocesses)."""
+    pytest.importorskip(
+        "torch",
+        reason="the segmenter needs the perception extra: pip install torch==2.13.0 && pip install 'viva-sitl[perception]'",
+    )
+    from viva_sitl.perception.segment import UNet, save_segmenter
+
+    path = tmp_path_factory.mktemp("seg0") / "unet0.pt"
+    save_segmenter(UNet(width=4, depth=3), path)
+    return path
+
+
 def _leftovers(marker: str) -> list[str]:
     ps = subprocess.run(["ps", "-eo", "pid,args"], capture_output=True, text=True).stdout
     return [line for line in ps.splitlines() if marker in line and "ps -eo" not in line]
@@ -124,15 +139,15 @@ def _run(*args: str, timeout: float = 60.0) -> subprocess.CompletedProcess[str]:
                           timeout=timeout)  # fmt: skip
 
 
-def test_bad_inputs_are_one_line(tmp_path: Path, token_segmenter: Path) -> None:
+def test_bad_inputs_are_one_line(tmp_path: Path, untrained_segmenter: Path) -> None:
     (tmp_path / "junk.pt").write_bytes(b"not a checkpoint")
     cases = [
         ((), 2, "no model: give --segmenter PATH"),
         (("--segmenter", str(tmp_path / "nope.pt")), 2, "segmenter weights not found: "),
         (("--segmenter", str(tmp_path / "junk.pt")), 2, "is not a torch checkpoint"),
-        (("--segmenter", str(token_segmenter), "--scenario", str(tmp_path / "none.json")), 2,
+        (("--segmenter", str(untrained_segmenter), "--scenario", str(tmp_path / "none.json")), 2,
          "cannot read the scenario"),
-        (("--segmenter", str(token_segmenter), "--margin-m", "-1"), 2, "must be finite and > 0"),
+        (("--segmenter", str(untrained_segmenter), "--margin-m", "-1"), 2, "must be finite and > 0"),
     ]  # fmt: skip
     for args, code, needle in cases:
         r = _run(*args)
@@ -140,7 +155,7 @@ def test_bad_inputs_are_one_line(tmp_path: Path, token_segmenter: Path) -> None:
         assert r.returncode == code and len(err) == 1 and needle in err[0], (args, r.stderr)
     # no vehicle: the wait for a heartbeat ends with one FAILED line
     t0 = time.monotonic()
-    r = _run("udpin://127.0.0.1:9", "--now", "--segmenter", str(token_segmenter), "--step-timeout", "3")
+    r = _run("udpin://127.0.0.1:9", "--now", "--segmenter", str(untrained_segmenter), "--step-timeout", "3")
     assert r.returncode == 1 and "FAILED: no autopilot heartbeat on udpin://127.0.0.1:9" in r.stderr, r.stderr
     assert time.monotonic() - t0 < 40
 
