@@ -65,7 +65,8 @@ def test_unwritable_tlog_is_one_line(tmp_path: Path) -> None:
     blocker.write_text("a file where the tlog's directory should be")
     run = subprocess.run(
         [sys.executable, "-m", "viva_sitl", "run", "--footage", "synthetic", "--no-video", "--run-dir",
-         str(tmp_path / "run"), "--tlog", str(blocker / "x.tlog"), "--api-local-port", "0", "--gcs-local-port", "0"],
+         str(tmp_path / "run"), "--tlog", str(blocker / "x.tlog"), "--api-local-port", "0", "--gcs-local-port", "0",
+         "--no-dashboard"],
         capture_output=True, text=True, timeout=120, env=_env(), cwd=tmp_path,
     )  # fmt: skip
     assert run.returncode == 2, run.stderr
