@@ -17,7 +17,8 @@ distortion (effects.py).
 Models (--detector / --segmenter W):
 - a file: `.pt` is ultralytics weights for a detector (extra perception-yolo) or a U-Net saved by
   `perception train-segmenter` for a segmenter (extra perception); `.onnx` runs in onnxruntime (extra perception-onnx,
-  no torch): input 1x3xHxW float RGB 0..1 (resized to the model's static H, W, else the frame rounded up to 32);
+  no torch): input 1x3xHxW float RGB 0..1 (resized to the model's static H, W, else the frame rounded up to 32;
+  a detector's frame is letterboxed as ultralytics does: aspect kept, centred, grey 114 bars);
   detector output either (1, 4 + classes, N) raw YOLOv8 (cx, cy, w, h, class scores; NMS here at IoU 0.7) or
   (1, N, 6) [x1, y1, x2, y2, score, class] (ultralytics' nms/end2end export); segmenter output (1, 5 or 6, H, W)
   logits over levels 1..5 (6: channel 0 = no ground, ignored) or (1, H, W) levels.
@@ -303,7 +304,18 @@ class OnnxModel:
     def __call__(self, img: U8) -> Any:
         h, w = img.shape[:2]
         th, tw = self.in_hw or (32 * math.ceil(h / 32), 32 * math.ceil(w / 32))
-        x = cv2.resize(img, (tw, th), interpolation=cv2.INTER_LINEAR) if (th, tw) != (h, w) else img
+        # a detector sees the frame letterboxed as ultralytics trains and predicts (aspect kept, grey 114 bars,
+        # centred): stretching a 640x480 frame to a 480x480 export squashed every object by 3/4 and scored a
+        # different model than its .pt; a segmenter's mask keeps the input's aspect, so it is resized as trained
+        r, px, py = 1.0, 0, 0
+        if self.task == "detection" and (th, tw) != (h, w):
+            r = min(tw / w, th / h) if self.in_hw else 1.0  # a dynamic input: padded up to 32, not scaled
+            nw, nh = max(1, round(w * r)), max(1, round(h * r))
+            px, py = (tw - nw) // 2, (th - nh) // 2
+            x = np.full((th, tw, 3), 114, np.uint8)
+            x[py : py + nh, px : px + nw] = cv2.resize(img, (nw, nh), interpolation=cv2.INTER_LINEAR)
+        else:
+            x = cv2.resize(img, (tw, th), interpolation=cv2.INTER_LINEAR) if (th, tw) != (h, w) else img
         x = np.ascontiguousarray(x[..., ::-1].transpose(2, 0, 1)[None], np.float32) / np.float32(255.0)
         try:
             out = np.asarray(self.sess.run(None, {self.name: x})[0], np.float64)
@@ -323,7 +335,6 @@ class OnnxModel:
                                       "1x6xHxW or 1xHxW)")  # fmt: skip
             lv = np.clip(lv, 0, 5).astype(np.uint8)
             return np.asarray(cv2.resize(lv, (w, h), interpolation=cv2.INTER_NEAREST), np.uint8)
-        sx, sy = w / tw, h / th
         o = out[0] if out.ndim == 3 else out
         if o.ndim != 2:
             raise PerceptionError(f"{self.path.name} outputs {out.shape}: not a detector")
@@ -346,8 +357,8 @@ class OnnxModel:
         else:
             raise PerceptionError(f"{self.path.name} outputs {out.shape}: not a detector (expected 1x(4+C)xN "
                                   "or 1xNx6)")  # fmt: skip
-        rows[:, [0, 2]] *= sx
-        rows[:, [1, 3]] *= sy
+        rows[:, [0, 2]] = np.clip((rows[:, [0, 2]] - px) / r, 0.0, w)
+        rows[:, [1, 3]] = np.clip((rows[:, [1, 3]] - py) / r, 0.0, h)
         return rows
 
 
