@@ -216,6 +216,14 @@ def test_cli_bad_inputs_are_one_line(tmp_path: Path, capsys: pytest.CaptureFixtu
             "synthetic",
         ],
         "garbage.pt": ["--segmenter", str(tmp_path / "garbage.pt"), "--footage", "synthetic"],
+        "--imgsz must be in [32, 4096] px": [
+            "--detector",
+            "perception_oracles:gt_detector",
+            "--footage",
+            "synthetic",
+            "--imgsz",
+            "0",
+        ],
         "unknown effect 'fog'": [
             "--detector",
             "perception_oracles:gt_detector",

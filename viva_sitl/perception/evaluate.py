@@ -52,7 +52,7 @@ CIs: a percentile bootstrap over the frames of a cell (--bootstrap resamples, se
 results.json (schema "viva-sitl/perception-eval", version 1):
     schema, version, task ("detection" | "segmentation"), command (the exact argv), model {spec, kind},
     settings {footages, altitudes_m, tilts_deg, speeds_m_s, sr, effects {names, exposure_s, noise_std, k1, k2},
-              n_per_cell, seed, width_px, height_px, conf, radius_m, min_visible, bootstrap, class_map},
+              n_per_cell, seed, width_px, height_px, conf, radius_m, min_visible, bootstrap, class_map, imgsz},
     footages {name: {classes_available: [labels], risk_map: bool}},
     metrics: [names of the headline metrics, in cells[].metrics],
     cells: [{index, footage, altitude_m, tilt_deg, speed_m_s, sr, frames, sr_applied_frames,
@@ -160,6 +160,7 @@ class EvalSpec:
     bootstrap: int = 200
     class_map: tuple[tuple[int, int], ...] = ()
     worst: int = 8
+    imgsz: int = 640  # inference size of an ultralytics .pt detector (ONNX: the export's own input)
 
     def check(self) -> None:
         from viva_sitl.perception.config import SRMethod
@@ -176,6 +177,8 @@ class EvalSpec:
             raise PerceptionError(f"--radius-m must be > 0, got {self.radius_m}")
         if not 0 <= self.bootstrap <= 100_000:
             raise PerceptionError(f"--bootstrap must be in [0, 100000], got {self.bootstrap}")
+        if not 32 <= self.imgsz <= 4096:
+            raise PerceptionError(f"--imgsz must be in [32, 4096] px, got {self.imgsz}")
         for a in self.altitudes_m:
             if not 0.5 <= a <= 2000.0:
                 raise PerceptionError(f"--altitudes must be in [0.5, 2000] m, got {a:g}")
@@ -215,7 +218,7 @@ def _first_line(exc: BaseException) -> str:
     return (text.splitlines()[0][:160] if text else type(exc).__name__).strip()
 
 
-def load_model(spec: str, task: str) -> Model:
+def load_model(spec: str, task: str, imgsz: int = 640) -> Model:
     """A model from a file (.pt, .onnx) or `module:factory`; PerceptionError (one line) on anything wrong."""
     what = "detector" if task == "detection" else "segmenter"
     path = Path(spec)
@@ -228,7 +231,8 @@ def load_model(spec: str, task: str) -> Model:
             if task == "detection":
                 from viva_sitl.perception.detect import Detector
 
-                det = Detector(path, conf=0.001)  # mAP needs the low-score tail; --conf applies in the scores
+                # conf 0.001: mAP needs the low-score tail; --conf applies in the scores
+                det = Detector(path, conf=0.001, imgsz=imgsz)
                 return Model("ultralytics", lambda img, meta: det.detect(img))
             from viva_sitl.perception.errors import require_torch
 
@@ -827,7 +831,7 @@ def run_eval(
     from viva_sitl.world import ObjectClass
 
     spec.check()
-    model = load_model(spec.model, spec.task)
+    model = load_model(spec.model, spec.task, spec.imgsz)
     base = CameraParams(width_px=spec.width_px, height_px=spec.height_px)
     params = spec.effects.camera(base)
     src_map = distortion_source_map(params, camera_intrinsics(params)) if params.has_distortion else None
@@ -929,6 +933,7 @@ def run_eval(
             "min_visible": spec.min_visible,
             "bootstrap": spec.bootstrap,
             "class_map": {str(a): b for a, b in spec.class_map},
+            "imgsz": spec.imgsz,
         },  # fmt: skip
         "footages": footage_info,
         "metrics": list(DET_METRICS if spec.task == "detection" else SEG_METRICS),
@@ -1048,6 +1053,8 @@ def add_eval_arguments(p: Any) -> None:
     p.add_argument("--size", default="640x480", help="VAC size WxH")
     p.add_argument("--conf", type=float, default=0.25, help="detector score threshold for precision/recall")
     p.add_argument("--radius-m", type=float, default=10.0, help="near-centre radius of the safety recall (m)")
+    p.add_argument("--imgsz", type=int, default=640,
+                   help="inference size of an ultralytics .pt detector (its training size; ONNX: its input)")  # fmt: skip
     p.add_argument("--class-map", default="", help="model class id -> ObjectClass id, e.g. 0=2,1=0")
     p.add_argument("--bootstrap", type=int, default=200, help="bootstrap resamples for the CIs (0: none)")
     p.add_argument("--worst", type=int, default=8, help="worst frames shown in the report")
@@ -1103,7 +1110,7 @@ def eval_cli(args: Any, argv: Sequence[str] = ()) -> int:
         sr_models=tuple(_pairs(",".join(args.sr_model), "--sr-model")),
         effects=EffectSpec.parse(args.effects, args.exposure_s, args.noise_std, args.k1),
         n_per_cell=args.n_per_cell, seed=args.seed, width_px=w, height_px=h, conf=args.conf,
-        radius_m=args.radius_m, bootstrap=args.bootstrap, class_map=class_map, worst=args.worst,
+        radius_m=args.radius_m, bootstrap=args.bootstrap, class_map=class_map, worst=args.worst, imgsz=args.imgsz,
     )  # fmt: skip
     spec.check()
     n = (len(spec.footages) * len(spec.altitudes_m) * len(spec.tilts_deg) * len(spec.speeds_m_s) * len(spec.sr)
