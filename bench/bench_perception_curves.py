@@ -1,7 +1,7 @@
 """Curves of our own perception models through `viva-sitl perception eval` (issue 23's bench).
 
     python bench/bench_perception_curves.py --segmenter /work/models/segmenter_synthetic.pt \\
-        [--detector /work/models/detector_synthetic.pt] [--n-per-cell 4] [--only NAME,...] -o OUT [--md FILE]
+        [--detector /work/models/detector_synthetic.pt --imgsz 480] [--n-per-cell 4] [--only NAME,...] -o OUT [--md FILE]
 
 Runs the curve set below, one `perception eval` each (run_eval + write_outputs: OUT/<name>/results.json, cells.csv,
 report.html, exactly what the CLI writes), and prints one markdown table per curve: the headline metrics of each
@@ -10,7 +10,7 @@ footage cannot answer (no ground truth of the kind, a view that never fits) prin
 instead of a table. The detector needs the perception-yolo extra (a .pt) or perception-onnx (an .onnx).
 
 Curves (per model): altitude 10..120 m on the synthetic field; tilt 0/15/30 deg and speed 0/5/10 m/s with motion
-blur (at 20 and 60 m) on the synthetic field; altitude on the Songdo stills with SR none vs bicubic (SR only
+blur (at 20 and 60 m; exposure 0.02 s, the default, and 0.1 s) on the synthetic field; altitude on the Songdo stills with SR none vs bicubic (SR only
 applies where the VAC magnifies the still: the low altitudes); altitude on the two SDD scenes (their footprint
 is ~60-80 m, so 10..30 m).
 """
@@ -43,6 +43,9 @@ def curves(n: int) -> list[tuple[str, str, dict[str, Any]]]:
                                 "tilts_deg": (0.0, 15.0, 30.0)}),
         ("synth_blur_speed", "speed", {"footages": ("synthetic",), "altitudes_m": (20.0, 60.0),
                                        "speeds_m_s": (0.0, 5.0, 10.0), "effects": EffectSpec.parse("blur")}),
+        ("synth_blur_long", "speed", {"footages": ("synthetic",), "altitudes_m": (20.0, 60.0),
+                                      "speeds_m_s": (0.0, 5.0, 10.0),
+                                      "effects": EffectSpec.parse("blur", exposure_s=0.1)}),
         ("songdo_sr", "sr", {"footages": ("songdo-00003", "songdo-00972", "songdo-03936"),
                              "altitudes_m": (10.0, 20.0, 40.0, 60.0), "sr": ("none", "bicubic")}),
         ("sdd_altitude", "altitude", {"footages": ("sdd-deathcircle-4", "sdd-nexus-5"),
@@ -78,6 +81,7 @@ def main() -> int:
     ap.add_argument(
         "--detector", default="", help="detector weights (.pt ultralytics, .onnx, module:factory)"
     )
+    ap.add_argument("--imgsz", type=int, default=640, help="the .pt detector's inference size")
     ap.add_argument("--n-per-cell", type=int, default=4)
     ap.add_argument("--bootstrap", type=int, default=200)
     ap.add_argument("--only", default="", help="comma-separated curve names (default: all)")
@@ -99,7 +103,8 @@ def main() -> int:
         for name, _varies, kw in curves(args.n_per_cell):
             if only and name not in only:
                 continue
-            spec = EvalSpec(task, weights, n_per_cell=args.n_per_cell, bootstrap=args.bootstrap, **kw)
+            spec = EvalSpec(task, weights, n_per_cell=args.n_per_cell, bootstrap=args.bootstrap,
+                            imgsz=args.imgsz, **kw)  # fmt: skip
             head = f"### {task}, {name} ({Path(weights).name}, {args.n_per_cell} frames per cell)"
             t0 = time.perf_counter()
             try:
