@@ -53,6 +53,24 @@ def curves(n: int) -> list[tuple[str, str, dict[str, Any]]]:
     ]  # fmt: skip
 
 
+def cli_command(spec: EvalSpec) -> list[str]:
+    """The `viva-sitl perception eval` argv that runs the same evaluation (for the report's "exact command")."""
+
+    def vals(v: tuple[float, ...]) -> str:
+        return ",".join(f"{x:g}" for x in v)
+
+    flag = "--detector" if spec.task == "detection" else "--segmenter"
+    argv = ["viva-sitl", "perception", "eval", flag, spec.model, "--footage", ",".join(spec.footages),
+            "--altitudes", vals(spec.altitudes_m), "--tilt-deg", vals(spec.tilts_deg),
+            "--speed-m-s", vals(spec.speeds_m_s), "--sr", ",".join(spec.sr)]  # fmt: skip
+    if spec.effects.names:
+        argv += ["--effects", ",".join(spec.effects.names), "--exposure-s", f"{spec.effects.exposure_s:g}"]
+    argv += ["--n-per-cell", str(spec.n_per_cell), "--bootstrap", str(spec.bootstrap)]
+    if spec.task == "detection":
+        argv += ["--imgsz", str(spec.imgsz)]
+    return argv
+
+
 def _fmt(m: dict[str, Any]) -> str:
     v = m["value"]
     if v is None:
@@ -105,10 +123,11 @@ def main() -> int:
                 continue
             spec = EvalSpec(task, weights, n_per_cell=args.n_per_cell, bootstrap=args.bootstrap,
                             imgsz=args.imgsz, **kw)  # fmt: skip
-            head = f"### {task}, {name} ({Path(weights).name}, {args.n_per_cell} frames per cell)"
+            head = (f"### {task}, {name} ({Path(weights).name}, {args.n_per_cell} frames per cell)\n\n"
+                    f"`{' '.join(cli_command(spec))} -o OUT`")  # fmt: skip
             t0 = time.perf_counter()
             try:
-                results, worst, timing = run_eval(spec, ["bench/bench_perception_curves.py", task, name])
+                results, worst, timing = run_eval(spec, cli_command(spec))
             except PerceptionError as exc:
                 block = [head, "", f"cannot answer: {exc}", ""]
             else:
