@@ -11,8 +11,8 @@ instead of a table. The detector needs the perception-yolo extra (a .pt) or perc
 
 Curves (per model): altitude 10..120 m on the synthetic field; tilt 0/15/30 deg and speed 0/5/10 m/s with motion
 blur (at 20 and 60 m; exposure 0.02 s, the default, and 0.1 s) on the synthetic field; altitude on the Songdo stills with SR none vs bicubic (SR only
-applies where the VAC magnifies the still: the low altitudes); altitude on the two SDD scenes (their footprint
-is ~60-80 m, so 10..30 m).
+applies where the VAC magnifies the still: the low altitudes); altitude on the interchange video (20..120 m) and on
+the two SDD scenes (their footprint is ~60-80 m, so 10..30 m).
 """
 
 from __future__ import annotations
@@ -48,6 +48,7 @@ def curves(n: int) -> list[tuple[str, str, dict[str, Any]]]:
                                       "effects": EffectSpec.parse("blur", exposure_s=0.1)}),
         ("songdo_sr", "sr", {"footages": ("songdo-00003", "songdo-00972", "songdo-03936"),
                              "altitudes_m": (10.0, 20.0, 40.0, 60.0), "sr": ("none", "bicubic")}),
+        ("interchange_altitude", "altitude", {"footages": ("interchange",), "altitudes_m": (20.0, 40.0, 80.0, 120.0)}),
         ("sdd_altitude", "altitude", {"footages": ("sdd-deathcircle-4", "sdd-nexus-5"),
                                       "altitudes_m": (10.0, 20.0, 30.0)}),
     ]  # fmt: skip
