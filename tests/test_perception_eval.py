@@ -216,6 +216,14 @@ def test_cli_bad_inputs_are_one_line(tmp_path: Path, capsys: pytest.CaptureFixtu
             "synthetic",
         ],
         "garbage.pt": ["--segmenter", str(tmp_path / "garbage.pt"), "--footage", "synthetic"],
+        "--imgsz must be in [32, 4096] px": [
+            "--detector",
+            "perception_oracles:gt_detector",
+            "--footage",
+            "synthetic",
+            "--imgsz",
+            "0",
+        ],
         "unknown effect 'fog'": [
             "--detector",
             "perception_oracles:gt_detector",
@@ -304,13 +312,18 @@ def test_average_precision_matches_pycocotools() -> None:
     assert ours["map50"] == pytest.approx(ev.stats[1], abs=1e-9)
 
 
-def _onnx_model(path: Path, out: np.ndarray | None = None, bias: list[float] | None = None) -> None:
+def _onnx_model(
+    path: Path,
+    out: np.ndarray | None = None,
+    bias: list[float] | None = None,
+    hw: tuple[int, int] = (480, 640),
+) -> None:
     """A tiny ONNX model on a 1x3x480x640 input: a constant output (detector) or a 1x1 conv whose bias picks the
     level (segmenter)."""
     onnx = pytest.importorskip("onnx", reason="building an ONNX model needs onnx (extra perception-onnx)")
     from onnx import TensorProto, helper, numpy_helper
 
-    x = helper.make_tensor_value_info("images", TensorProto.FLOAT, [1, 3, 480, 640])
+    x = helper.make_tensor_value_info("images", TensorProto.FLOAT, [1, 3, *hw])
     if out is not None:  # detector: output = out + 0 * sum(input)
         nodes = [helper.make_node("ReduceSum", ["images"], ["s"], keepdims=0),
                  helper.make_node("Mul", ["s", "zero"], ["z"]), helper.make_node("Add", ["c", "z"], ["output0"])]  # fmt: skip
@@ -390,3 +403,18 @@ def test_detector_answers_are_checked_and_class_ids_renamed() -> None:
         as_detections([[0, 0, 4, 4, 0, float("nan")]], {})
     with pytest.raises(PerceptionError, match="integer levels 0..5"):
         as_levels(np.full((4, 4), 7, np.uint8), (4, 4))
+
+
+def test_onnx_detector_sees_the_frame_letterboxed_as_ultralytics_does(tmp_path: Path) -> None:
+    # a 480x480 export (ultralytics `export imgsz=480`) on a 640x480 frame: scaled by 3/4 to 480x360, 60 px grey bars
+    # above and below; a box the model reports at input (90..110, 150..170) is the frame's (120..146.7, 120..146.7),
+    # not the stretched (120..146.7, 150..170) that squashed every object by 3/4 before
+    pytest.importorskip("onnxruntime", reason="ONNX inference needs onnxruntime (extra perception-onnx)")
+    from viva_sitl.perception.evaluate import OnnxModel
+
+    nms = np.zeros((1, 3, 6), np.float32)
+    nms[0, 0] = [90, 150, 110, 170, 0.9, 0]
+    _onnx_model(tmp_path / "sq.onnx", out=nms, hw=(480, 480))
+    rows = OnnxModel(tmp_path / "sq.onnx", "detection")(np.zeros((480, 640, 3), np.uint8))
+    assert rows.shape == (1, 6)
+    np.testing.assert_allclose(rows[0], [120, 120, 110 / 0.75, 110 / 0.75, 0, 0.9], rtol=1e-5)

@@ -17,7 +17,8 @@ distortion (effects.py).
 Models (--detector / --segmenter W):
 - a file: `.pt` is ultralytics weights for a detector (extra perception-yolo) or a U-Net saved by
   `perception train-segmenter` for a segmenter (extra perception); `.onnx` runs in onnxruntime (extra perception-onnx,
-  no torch): input 1x3xHxW float RGB 0..1 (resized to the model's static H, W, else the frame rounded up to 32);
+  no torch): input 1x3xHxW float RGB 0..1 (resized to the model's static H, W, else the frame rounded up to 32;
+  a detector's frame is letterboxed as ultralytics does: aspect kept, centred, grey 114 bars);
   detector output either (1, 4 + classes, N) raw YOLOv8 (cx, cy, w, h, class scores; NMS here at IoU 0.7) or
   (1, N, 6) [x1, y1, x2, y2, score, class] (ultralytics' nms/end2end export); segmenter output (1, 5 or 6, H, W)
   logits over levels 1..5 (6: channel 0 = no ground, ignored) or (1, H, W) levels.
@@ -51,7 +52,7 @@ CIs: a percentile bootstrap over the frames of a cell (--bootstrap resamples, se
 results.json (schema "viva-sitl/perception-eval", version 1):
     schema, version, task ("detection" | "segmentation"), command (the exact argv), model {spec, kind},
     settings {footages, altitudes_m, tilts_deg, speeds_m_s, sr, effects {names, exposure_s, noise_std, k1, k2},
-              n_per_cell, seed, width_px, height_px, conf, radius_m, min_visible, bootstrap, class_map},
+              n_per_cell, seed, width_px, height_px, conf, radius_m, min_visible, bootstrap, class_map, imgsz},
     footages {name: {classes_available: [labels], risk_map: bool}},
     metrics: [names of the headline metrics, in cells[].metrics],
     cells: [{index, footage, altitude_m, tilt_deg, speed_m_s, sr, frames, sr_applied_frames,
@@ -159,6 +160,7 @@ class EvalSpec:
     bootstrap: int = 200
     class_map: tuple[tuple[int, int], ...] = ()
     worst: int = 8
+    imgsz: int = 640  # inference size of an ultralytics .pt detector (ONNX: the export's own input)
 
     def check(self) -> None:
         from viva_sitl.perception.config import SRMethod
@@ -175,6 +177,8 @@ class EvalSpec:
             raise PerceptionError(f"--radius-m must be > 0, got {self.radius_m}")
         if not 0 <= self.bootstrap <= 100_000:
             raise PerceptionError(f"--bootstrap must be in [0, 100000], got {self.bootstrap}")
+        if not 32 <= self.imgsz <= 4096:
+            raise PerceptionError(f"--imgsz must be in [32, 4096] px, got {self.imgsz}")
         for a in self.altitudes_m:
             if not 0.5 <= a <= 2000.0:
                 raise PerceptionError(f"--altitudes must be in [0.5, 2000] m, got {a:g}")
@@ -214,7 +218,7 @@ def _first_line(exc: BaseException) -> str:
     return (text.splitlines()[0][:160] if text else type(exc).__name__).strip()
 
 
-def load_model(spec: str, task: str) -> Model:
+def load_model(spec: str, task: str, imgsz: int = 640) -> Model:
     """A model from a file (.pt, .onnx) or `module:factory`; PerceptionError (one line) on anything wrong."""
     what = "detector" if task == "detection" else "segmenter"
     path = Path(spec)
@@ -227,7 +231,8 @@ def load_model(spec: str, task: str) -> Model:
             if task == "detection":
                 from viva_sitl.perception.detect import Detector
 
-                det = Detector(path, conf=0.001)  # mAP needs the low-score tail; --conf applies in the scores
+                # conf 0.001: mAP needs the low-score tail; --conf applies in the scores
+                det = Detector(path, conf=0.001, imgsz=imgsz)
                 return Model("ultralytics", lambda img, meta: det.detect(img))
             from viva_sitl.perception.errors import require_torch
 
@@ -303,7 +308,18 @@ class OnnxModel:
     def __call__(self, img: U8) -> Any:
         h, w = img.shape[:2]
         th, tw = self.in_hw or (32 * math.ceil(h / 32), 32 * math.ceil(w / 32))
-        x = cv2.resize(img, (tw, th), interpolation=cv2.INTER_LINEAR) if (th, tw) != (h, w) else img
+        # a detector sees the frame letterboxed as ultralytics trains and predicts (aspect kept, grey 114 bars,
+        # centred): stretching a 640x480 frame to a 480x480 export squashed every object by 3/4 and scored a
+        # different model than its .pt; a segmenter's mask keeps the input's aspect, so it is resized as trained
+        r, px, py = 1.0, 0, 0
+        if self.task == "detection" and (th, tw) != (h, w):
+            r = min(tw / w, th / h) if self.in_hw else 1.0  # a dynamic input: padded up to 32, not scaled
+            nw, nh = max(1, round(w * r)), max(1, round(h * r))
+            px, py = (tw - nw) // 2, (th - nh) // 2
+            x = np.full((th, tw, 3), 114, np.uint8)
+            x[py : py + nh, px : px + nw] = cv2.resize(img, (nw, nh), interpolation=cv2.INTER_LINEAR)
+        else:
+            x = cv2.resize(img, (tw, th), interpolation=cv2.INTER_LINEAR) if (th, tw) != (h, w) else img
         x = np.ascontiguousarray(x[..., ::-1].transpose(2, 0, 1)[None], np.float32) / np.float32(255.0)
         try:
             out = np.asarray(self.sess.run(None, {self.name: x})[0], np.float64)
@@ -323,7 +339,6 @@ class OnnxModel:
                                       "1x6xHxW or 1xHxW)")  # fmt: skip
             lv = np.clip(lv, 0, 5).astype(np.uint8)
             return np.asarray(cv2.resize(lv, (w, h), interpolation=cv2.INTER_NEAREST), np.uint8)
-        sx, sy = w / tw, h / th
         o = out[0] if out.ndim == 3 else out
         if o.ndim != 2:
             raise PerceptionError(f"{self.path.name} outputs {out.shape}: not a detector")
@@ -346,8 +361,8 @@ class OnnxModel:
         else:
             raise PerceptionError(f"{self.path.name} outputs {out.shape}: not a detector (expected 1x(4+C)xN "
                                   "or 1xNx6)")  # fmt: skip
-        rows[:, [0, 2]] *= sx
-        rows[:, [1, 3]] *= sy
+        rows[:, [0, 2]] = np.clip((rows[:, [0, 2]] - px) / r, 0.0, w)
+        rows[:, [1, 3]] = np.clip((rows[:, [1, 3]] - py) / r, 0.0, h)
         return rows
 
 
@@ -816,7 +831,7 @@ def run_eval(
     from viva_sitl.world import ObjectClass
 
     spec.check()
-    model = load_model(spec.model, spec.task)
+    model = load_model(spec.model, spec.task, spec.imgsz)
     base = CameraParams(width_px=spec.width_px, height_px=spec.height_px)
     params = spec.effects.camera(base)
     src_map = distortion_source_map(params, camera_intrinsics(params)) if params.has_distortion else None
@@ -918,6 +933,7 @@ def run_eval(
             "min_visible": spec.min_visible,
             "bootstrap": spec.bootstrap,
             "class_map": {str(a): b for a, b in spec.class_map},
+            "imgsz": spec.imgsz,
         },  # fmt: skip
         "footages": footage_info,
         "metrics": list(DET_METRICS if spec.task == "detection" else SEG_METRICS),
@@ -1037,6 +1053,8 @@ def add_eval_arguments(p: Any) -> None:
     p.add_argument("--size", default="640x480", help="VAC size WxH")
     p.add_argument("--conf", type=float, default=0.25, help="detector score threshold for precision/recall")
     p.add_argument("--radius-m", type=float, default=10.0, help="near-centre radius of the safety recall (m)")
+    p.add_argument("--imgsz", type=int, default=640,
+                   help="inference size of an ultralytics .pt detector (its training size; ONNX: its input)")  # fmt: skip
     p.add_argument("--class-map", default="", help="model class id -> ObjectClass id, e.g. 0=2,1=0")
     p.add_argument("--bootstrap", type=int, default=200, help="bootstrap resamples for the CIs (0: none)")
     p.add_argument("--worst", type=int, default=8, help="worst frames shown in the report")
@@ -1092,7 +1110,7 @@ def eval_cli(args: Any, argv: Sequence[str] = ()) -> int:
         sr_models=tuple(_pairs(",".join(args.sr_model), "--sr-model")),
         effects=EffectSpec.parse(args.effects, args.exposure_s, args.noise_std, args.k1),
         n_per_cell=args.n_per_cell, seed=args.seed, width_px=w, height_px=h, conf=args.conf,
-        radius_m=args.radius_m, bootstrap=args.bootstrap, class_map=class_map, worst=args.worst,
+        radius_m=args.radius_m, bootstrap=args.bootstrap, class_map=class_map, worst=args.worst, imgsz=args.imgsz,
     )  # fmt: skip
     spec.check()
     n = (len(spec.footages) * len(spec.altitudes_m) * len(spec.tilts_deg) * len(spec.speeds_m_s) * len(spec.sr)
