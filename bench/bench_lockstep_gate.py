@@ -149,7 +149,8 @@ def one_trial(pilot: str, n: int, jobs: int, speed: float, out: str) -> dict[str
         tm = end.get("timing") or {}
         q = tm.get("quanta") or 0
         per.append({
-            "trial": r["trial"], "end": r["end"], "wall_s": r["wall_s"], "quanta": q,
+            "trial": r["trial"], "end": r["end"], "end_detail": str(r.get("end_detail", ""))[:200], "wall_s": r["wall_s"],
+            "quanta": q,
             "gate_ms_per_quantum": round(1000 * tm.get("busy_wall_s", 0.0) / q, 3) if q else None,
             "gate_wall_s": tm.get("busy_wall_s"), "waited": tm.get("waited"), "pilot_cpu_s": tm.get("pilot_cpu_s"),
             "pilot_wait_wall_s": end.get("pilot_wait_wall_s"),
