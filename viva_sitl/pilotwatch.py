@@ -1,12 +1,13 @@
 """Watching an unchanged pilot program from the outside (Linux /proc): is it computing, or waiting for input?
 
 Lockstep and charged timing (clock.py, `--timing`) need one fact about a program we do not control: has it finished
-reacting to what the vehicle sent it? A process tree is **idle** when, in two samples a settle interval apart,
+reacting to what the vehicle sent it? A process tree is **idle** when, in two samples (timing.PilotGate takes them
+with the vehicle's event loop drained between them; the first may be the previous quantum's last),
 
 - none of its threads is runnable or in uninterruptible wait (/proc/PID/task/TID/stat state R or D),
 - its CPU time (the sum of /proc/PID/task/TID/schedstat's first field, nanoseconds) grew by less than
-  IDLE_CPU_FRACTION of the interval (a wall-clock timer thread that wakes for microseconds, as MAVSDK's and gRPC's
-  do, is idle; a thread that computes is not).
+  IDLE_CPU_FRACTION of the interval, capped at that share of 1 ms (a wall-clock timer thread that wakes for
+  microseconds, as MAVSDK's and gRPC's do, is idle; a thread that computes is not).
 
 A program that sleeps on a wall-clock timer with data unread is idle (it is not computing: time passes for it, as it
 would on a real vehicle); when it wakes and reads, it is computing, and is waited for. Bytes in socket queues are not
