@@ -1,12 +1,13 @@
 """Watching an unchanged pilot program from the outside (Linux /proc): is it computing, or waiting for input?
 
 Lockstep and charged timing (clock.py, `--timing`) need one fact about a program we do not control: has it finished
-reacting to what the vehicle sent it? A process tree is **idle** when, in two samples a settle interval apart,
+reacting to what the vehicle sent it? A process tree is **idle** when, in two samples (timing.PilotGate takes them
+with the vehicle's event loop drained between them; the first may be the previous quantum's last),
 
 - none of its threads is runnable or in uninterruptible wait (/proc/PID/task/TID/stat state R or D),
 - its CPU time (the sum of /proc/PID/task/TID/schedstat's first field, nanoseconds) grew by less than
-  IDLE_CPU_FRACTION of the interval (a wall-clock timer thread that wakes for microseconds, as MAVSDK's and gRPC's
-  do, is idle; a thread that computes is not).
+  IDLE_CPU_FRACTION of the interval, capped at that share of 1 ms (a wall-clock timer thread that wakes for
+  microseconds, as MAVSDK's and gRPC's do, is idle; a thread that computes is not).
 
 A program that sleeps on a wall-clock timer with data unread is idle (it is not computing: time passes for it, as it
 would on a real vehicle); when it wakes and reads, it is computing, and is waited for. Bytes in socket queues are not
@@ -31,6 +32,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 IDLE_CPU_FRACTION = 0.05  # CPU growth below this share of the settle interval still counts as idle
+FULL_RESCAN_S = 5.0  # wall seconds between two rescans that read every process's group again
 _NET_TABLES = ("udp", "udp6")
 _PROC = Path("/proc")
 
@@ -48,6 +50,26 @@ def _read(path: str) -> str | None:
             return f.read().decode("ascii", "replace")
     except OSError:
         return None
+
+
+def _pgrp_state(pid: int) -> tuple[int | None, str]:
+    """(process group, state letter) of a process from /proc/PID/stat; (None, '') when it is gone."""
+    try:
+        fd = os.open(f"/proc/{pid}/stat", os.O_RDONLY)
+    except OSError:
+        return None, ""
+    try:
+        text = os.read(fd, 512)
+    except OSError:
+        return None, ""
+    finally:
+        os.close(fd)
+    i = text.rfind(b")")
+    f = text[i + 2 :].split(None, 3)
+    try:
+        return int(f[2]), f[0].decode("ascii", "replace")
+    except (IndexError, ValueError):
+        return None, ""
 
 
 def _stat_fields(text: str) -> list[str]:
@@ -187,6 +209,8 @@ class PilotTree:
     _scanned_wall_s: float = field(default=-1e9, init=False)
     _gone_cpu_ns: int = field(default=0, init=False)  # CPU of threads that ended (the total never drops)
     _gone_delay_ns: int = field(default=0, init=False)
+    _others: set[int] = field(default_factory=set, init=False)  # pids seen outside the group
+    _full_wall_s: float = field(default=-1e9, init=False)
 
     def __post_init__(self) -> None:
         for tid in self.extra_threads:
@@ -194,16 +218,31 @@ class PilotTree:
                 self._extra.append(_Thread(f"/proc/self/task/{tid}", tid))
 
     def _rescan(self, now_s: float) -> None:
+        # Which processes are in the group: a process outside it (checked once, kept in _others while its pid
+        # lives) is not read again, so a rescan reads /proc/PID/stat of the group's members and of new pids only
+        # (reading all of them cost ~3 ms per rescan with ~100 processes); every FULL_RESCAN_S all are read again
+        # (a process that joined the group by setpgid).
+        full = now_s - self._full_wall_s >= FULL_RESCAN_S
+        if full:
+            self._others.clear()
+            self._full_wall_s = now_s
+        live: set[int] = set()
         pids = []
         for entry in os.listdir("/proc"):
             if not entry.isdigit():
                 continue
-            text = _read(f"/proc/{entry}/stat")
-            if text is None:
+            pid = int(entry)
+            live.add(pid)
+            if pid in self._others:
                 continue
-            f = _stat_fields(text)
-            if len(f) > 2 and f[2] == str(self.pgid) and f[0] != "Z" and int(entry) not in self.exclude:
-                pids.append(int(entry))
+            pgrp, state = _pgrp_state(pid)
+            if pgrp is None:
+                continue
+            if pgrp == self.pgid and state != "Z" and pid not in self.exclude:
+                pids.append(pid)
+            elif pgrp != self.pgid:
+                self._others.add(pid)
+        self._others &= live
         seen: set[tuple[int, int]] = set()
         for pid in pids:
             try:

@@ -33,7 +33,10 @@ from typing import Any
 from viva_sitl.pilotwatch import IDLE_CPU_FRACTION, PilotTree, TreeSample
 
 QUANTUM_S = 0.02  # sim seconds between two waits for the pilot (its reaction time is at most one quantum)
-SETTLE_S = 0.001  # wall seconds between the two looks that find a pilot idle
+SETTLE_S = 0.001  # wall seconds: the longest nap between two looks (and the idle tolerance's base)
+NAP_MIN_S = 0.0001  # the shortest nap between two looks (doubles while the pilot computes)
+DRAIN_MAX_YIELDS = 64  # event-loop iterations a drain runs before it falls back to a SETTLE_S sleep
+WAITED_S = 0.003  # a quantum whose wait took longer counts as one the pilot made the clock wait for
 NEVER_IDLE_GIVE_UP_S = 2.0  # CPU seconds of the pilot's after which one quantum stops waiting for it
 NEVER_IDLE_WALL_MAX_S = 60.0  # and the wall seconds after which it stops whatever the CPU says
 VIDEO_WAIT_MAX_S = 10.0  # wall seconds a quantum waits for the video outputs to have sent its frames
@@ -126,39 +129,81 @@ class PilotGate:
 
     async def wait_idle(self, ready: Callable[[], bool] = lambda: True) -> float:
         """Wait until the pilot is idle (and `ready()`: e.g. the video outputs wrote the quantum's frames);
-        return the pilot's CPU seconds since the previous call."""
+        return the pilot's CPU seconds since the previous call.
+
+        Idle = two looks (pilotwatch.TreeSample), with the endpoint drained between them (`_drain`: the event loop
+        has read everything the pilot sent), that both find no thread runnable and between which the pilot's CPU
+        grew by at most IDLE_CPU_FRACTION of the interval (capped at that share of SETTLE_S). The first of the two
+        may be the previous call's last look: a pilot that used no CPU since then (nothing reached it, or it ignored
+        it) is idle after one look. A pilot found quiet but having used CPU is looked at again after the drain alone
+        (once per quantum; later after NAP_MIN_S); while it computes the gate naps NAP_MIN_S, doubling up to SETTLE_S
+        (then on the event loop's timer). A look costs tens of microseconds (two preads per pilot thread).
+        """
+        loop = asyncio.get_running_loop()
         t0 = time.monotonic()
         cpu_before = self._last.cpu_ns
-        prev: TreeSample | None = None
+        prev: TreeSample = self._last
+        nap = NAP_MIN_S
+        quick = True
         while True:
-            await asyncio.sleep(SETTLE_S)  # the endpoint reads the pilot's messages meanwhile
+            await _drain(loop)  # the endpoint reads the pilot's messages
             now = time.monotonic()
             if not ready() and now - t0 < VIDEO_WAIT_MAX_S:
+                await asyncio.sleep(SETTLE_S)
                 continue
             cur = self.tree.sample(now)
             if cur.processes == 0:  # the pilot is gone: nothing to wait for
                 break
             if (
-                prev is not None
-                and prev.quiet
+                prev.quiet
                 and cur.quiet
-                and cur.cpu_ns - prev.cpu_ns <= IDLE_CPU_FRACTION * (now - prev.wall_s) * 1e9
+                and cur.cpu_ns - prev.cpu_ns <= IDLE_CPU_FRACTION * min(now - prev.wall_s, SETTLE_S) * 1e9
             ):
                 break
             if cur.cpu_ns - cpu_before >= NEVER_IDLE_GIVE_UP_S * 1e9 or now - t0 >= NEVER_IDLE_WALL_MAX_S:
                 self.stats.never_idle += 1
                 break
             prev = cur
+            if cur.quiet:  # it has just finished (or a timer thread ran): confirm soon
+                nap = NAP_MIN_S
+                if (
+                    quick
+                ):  # the first time in a quantum after the drain alone, then after a nap (no busy polling)
+                    quick = False
+                    continue
+            if nap >= SETTLE_S:
+                await asyncio.sleep(SETTLE_S)
+            else:
+                time.sleep(nap)  # sub-millisecond (the event loop's timers are in whole ms); drained next
+                nap *= 2
         end = time.monotonic()
         last = cur  # the newest look: the pilot's CPU up to now
         self._last = last
         self.stats.observe(last)
         waited = end - t0
-        if waited > 3 * SETTLE_S:
+        if waited > WAITED_S:
             self.stats.waited += 1
         self.stats.busy_wall_s += waited
         self.stats.max_busy_wall_s = max(self.stats.max_busy_wall_s, waited)
         return max(0.0, (last.cpu_ns - cpu_before) / 1e9)
+
+
+async def _drain(loop: asyncio.AbstractEventLoop) -> None:
+    """Let the event loop run until it has no I/O ready: every datagram the pilot sent so far has been read and
+    handed to the endpoint (a datagram transport reads one datagram per loop iteration). Peeks at the loop's
+    selector (level-triggered, so peeking consumes nothing); a loop without one (not asyncio's selector loop) gets
+    a SETTLE_S sleep instead, as does I/O still ready after DRAIN_MAX_YIELDS iterations."""
+    selector = getattr(loop, "_selector", None)
+    select = getattr(selector, "select", None)
+    if select is None:
+        await asyncio.sleep(SETTLE_S)
+        return
+    await asyncio.sleep(0)
+    for _ in range(DRAIN_MAX_YIELDS):
+        await asyncio.sleep(0)  # the callbacks of the previous iteration's ready I/O have run
+        if not select(0):
+            return
+    await asyncio.sleep(SETTLE_S)
 
 
 @dataclass
