@@ -228,3 +228,22 @@ def test_charged_fixed_latency_per_frame_delays_what_the_pilot_answers(tmp_path:
     assert ends[250.0]["timing"]["pilot_latency_ms"] == 250.0
     run = json.loads((tmp_path / "l250" / "results.json").read_text())["run"]
     assert run["timing"] == "charged" and run["pilot_latency_ms"] == 250.0
+
+
+@pytest.mark.slow
+def test_lockstep_holds_through_a_pilots_slow_first_frame(tmp_path: Path) -> None:
+    """A companion whose first frame costs 3 s of CPU (a model's warm-up on its first input) keeps lockstep: the
+    never-idle give-up (10 CPU s per quantum) is for busy polling, not for one long computation. With the give-up at
+    2 CPU s (before), that quantum ran without it (never_idle 1, timing_ok false)."""
+    script = tmp_path / "frame_pilot.py"
+    script.write_text(FRAME_PILOT)
+    camp = run_campaign(_spec("lockstep", n=1, frames=True),
+                        f"{{python}} {script} {{pymavlink_url}} {{frame_socket}} 20,40 3000", tmp_path / "o",
+                        progress=False)  # fmt: skip
+    (row,) = camp.ordered_rows()
+    assert row["end"] == "landed", (row["end"], row["end_detail"])
+    assert row["timing_ok"] is True, row
+    (end,) = (tmp_path / "o" / "trials").glob("*/end.json")
+    timing = json.loads(end.read_text())["timing"]
+    assert timing["never_idle"] == 0 and timing["lockstep_held"] is True, timing
+    assert timing["max_busy_wall_s"] >= 1.0, timing  # the clock did stand still through the 3 s computation

@@ -37,7 +37,9 @@ SETTLE_S = 0.001  # wall seconds: the longest nap between two looks (and the idl
 NAP_MIN_S = 0.0001  # the shortest nap between two looks (doubles while the pilot computes)
 DRAIN_MAX_YIELDS = 64  # event-loop iterations a drain runs before it falls back to a SETTLE_S sleep
 WAITED_S = 0.003  # a quantum whose wait took longer counts as one the pilot made the clock wait for
-NEVER_IDLE_GIVE_UP_S = 2.0  # CPU seconds of the pilot's after which one quantum stops waiting for it
+# CPU seconds of the pilot's after which one quantum stops waiting for it (2 was too few: a vision pilot's first
+# look, a model's warm-up, took > 2 CPU s at load 14-17 and lost lockstep for it)
+NEVER_IDLE_GIVE_UP_S = 10.0
 NEVER_IDLE_WALL_MAX_S = 60.0  # and the wall seconds after which it stops whatever the CPU says
 VIDEO_WAIT_MAX_S = 10.0  # wall seconds a quantum waits for the video outputs to have sent its frames
 NEVER_IDLE_QUANTA = (
