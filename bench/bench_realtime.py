@@ -153,10 +153,10 @@ class MetaCollector:
 
 
 class CircleFlight:
-    """Offboard velocity setpoints at 20 Hz: a horizontal circle at CIRCLE_SPEED_M_S, altitude held at ALT_M."""
+    """Offboard velocity setpoints at 20 Hz: a horizontal circle at CIRCLE_SPEED_M_S, altitude held at alt_m."""
 
-    def __init__(self, peer: Any) -> None:
-        self.peer = peer
+    def __init__(self, peer: Any, alt_m: float = ALT_M) -> None:
+        self.peer, self.alt_m = peer, alt_m
         self._stop = threading.Event()
         self.t0 = time.monotonic()
         self.thread = threading.Thread(target=self._run, daemon=True)
@@ -169,7 +169,7 @@ class CircleFlight:
         while not self._stop.wait(0.05):
             w = 2.0 * math.pi / CIRCLE_PERIOD_S * (time.monotonic() - self.t0)
             lp = self.peer.latest("LOCAL_POSITION_NED")
-            vz = 0.0 if lp is None else max(-1.0, min(1.0, 0.8 * (-ALT_M - lp.z)))
+            vz = 0.0 if lp is None else max(-1.0, min(1.0, 0.8 * (-self.alt_m - lp.z)))
             self.peer.send(
                 self.peer.mav.set_position_target_local_ned_encode(
                     0,
@@ -248,6 +248,9 @@ def main() -> int:
     ap.add_argument("--width", type=int, default=1280)
     ap.add_argument("--height", type=int, default=720)
     ap.add_argument("--fps", type=int, default=30)
+    ap.add_argument(
+        "--alt", type=float, default=ALT_M, help="altitude of the offboard circles, m (default 20)"
+    )
     ap.add_argument("--mjpeg", action="store_true", help="also stream MJPEG over RTP and decode it")
     ap.add_argument(
         "--footage", help="footage path or name (default: the 4K clip made from the shared 1080p clip)"
@@ -271,7 +274,7 @@ def main() -> int:
         "command": " ".join([Path(sys.executable).name, "bench/bench_realtime.py", *sys.argv[1:]]),
         "machine": {"nproc": os.cpu_count(), "cpu": cpu_model(), "loadavg_before": load_before},
         "config": {"footage": footage, "camera": f"{args.width}x{args.height}", "fps": args.fps,
-                   "speed": args.speed, "duration_s": args.duration, "mjpeg": args.mjpeg},
+                   "speed": args.speed, "duration_s": args.duration, "mjpeg": args.mjpeg, "alt_m": args.alt},
     }  # fmt: skip
     with tempfile.TemporaryDirectory(prefix="bench_realtime_") as tmp_s:
         tmp = Path(tmp_s)
@@ -313,8 +316,8 @@ def main() -> int:
         notes: list[str] = []
         try:
             peer.wait_autopilot(30.0)
-            takeoff(peer, ALT_M, timeout_s=120.0)
-            flight = CircleFlight(peer)
+            takeoff(peer, args.alt, timeout_s=120.0)
+            flight = CircleFlight(peer, args.alt)
             time.sleep(0.5)
             ack = peer.command_long(m2.MAV_CMD_DO_SET_MODE, [1.0, 6.0, 0.0])
             if ack.result != m2.MAV_RESULT_ACCEPTED:
@@ -381,6 +384,7 @@ def main() -> int:
             for k, v in video.get("outputs", {}).items()
         },  # fmt: skip
         "h264_dropped": h264o.get("dropped"),
+        "frames_lost_pct": stats.get("frames_lost_pct"),  # the app's own: (late-skipped + queue drops) / due
     }
     figures["streams"] = {k: stream_figures(k, got, meta.meta, args.fps) for k, (got, _) in results.items()}
     for k, (_, tail) in results.items():

@@ -16,9 +16,12 @@ One trial = a 60 s (sim) emergency landing: air start at 30 m over the clip, "la
   ref:  DroneEnv(render_mode="rgb_array", render_fps=30) with its drone view set to 640x480, reset at z = 30 m,
         then env.step() with a proportional descent policy (reads the observation the same way) until it
         terminates (z <= 2 m) or 60 s (1800 steps) pass: J such loops in J processes at once.
-Variants of ours (--variants): "video" flies over the H.264 clip itself; "tiles" over its `footage ingest --tiles`
-cache (jpeg q95, bench_tiles.make_tiles; a trial's footage may be any tile cache folder); "tiles-raw" over its raw
-(uncompressed, lossless: renders bit-identical to the video's) tile cache.
+Variants of ours (--variants): "default" opens the clip by path as `trials run` does for a new user: the automatic
+tile cache (viva_sitl.footage.autocache, default settings; only its folder is --auto-cache-dir, not ~/.cache), built
+once before the rounds, its build time reported apart ("auto_cache"); "video" flies over the H.264 clip itself
+(`--no-cache`); "tiles" over its `footage ingest --tiles` cache (jpeg q95, bench_tiles.make_tiles; a trial's footage
+may be any tile cache folder); "tiles-raw" over its raw (uncompressed, lossless: renders bit-identical to the
+video's) tile cache. --ref-python-also: a second reference (e.g. viva-safeland 0.2.5 beside 0.2.0), same rounds.
 Tile LRU (--tile-cache-mb, default 2 MiB, this process's tile settings, handed to the pool's workers): the bench clip
 is 60 frames (2 s) and loops ~15 times in a trial; with the library's default 256 MiB cap every tile under the views
 is decoded once and then served from the LRU on every later loop, which a real 60 s clip (1800 distinct frames)
@@ -141,11 +144,19 @@ def bench_spec(clip: Path, n: int) -> Any:
     )  # fmt: skip
 
 
-def ours(clip: Path, n: int, jobs: int) -> dict[str, Any]:
+def ours(clip: Path, n: int, jobs: int, policy: Any = None) -> dict[str, Any]:
+    """`n` trials over `clip` in a local pool of `jobs`, the campaign under automatic-cache policy `policy`
+    (viva_sitl.footage.autocache.CachePolicy; None: this process's), which it hands to its workers."""
+    import contextlib
+
     from viva_sitl.evaluation.campaign import run_campaign
+    from viva_sitl.footage import autocache
 
     spec = bench_spec(clip, n)
-    with tempfile.TemporaryDirectory() as d:
+    with (
+        tempfile.TemporaryDirectory() as d,
+        autocache.using_policy(policy) if policy is not None else contextlib.nullcontext(),
+    ):
         t0 = time.perf_counter()
         camp = run_campaign(spec, "bench.bench_trials:VisionDescend", Path(d), jobs=jobs, progress=False)
         wall = time.perf_counter() - t0
@@ -156,9 +167,16 @@ def ours(clip: Path, n: int, jobs: int) -> dict[str, Any]:
 
 
 def ours_memory(clip: Path) -> float:
+    from viva_sitl.footage import autocache
+
+    pol = autocache.policy()  # this process's, handed on as a campaign hands it to its workers
+    root = None if pol.root is None else str(pol.root)
     code = "\n".join([
         f"import sys; sys.path.insert(0, {str(REPO)!r})",
         "from pathlib import Path", "import tempfile",
+        "from viva_sitl.footage import autocache",
+        f"autocache.set_policy(autocache.CachePolicy(enabled={pol.enabled!r}, "
+        f"root=None if {root!r} is None else Path({root!r}), show_progress=False))",
         "from bench.bench_trials import bench_spec",
         "from viva_sitl.evaluation.spec import draw_scenarios",
         "from viva_sitl.evaluation.runner import run_inprocess_trial",
@@ -212,6 +230,27 @@ def floor(footage: Path) -> dict[str, float]:
             "floor_cpu_ms_per_frame": round(warp_ms + loop_ms, 3)}  # fmt: skip
 
 
+def build_auto_cache(clip: Path, policy: Any) -> dict[str, Any]:
+    """Open `clip` by path under `policy` (builds its automatic cache the first time, as a new user's first trial
+    does): the wall seconds that took, and the cache's size."""
+    from viva_sitl.footage import autocache
+    from viva_sitl.footage.loader import open_footage
+
+    t0 = time.perf_counter()
+    open_footage(clip, cache=policy).close()
+    build_s = time.perf_counter() - t0
+    entry = max((e for e in autocache.list_caches(policy.directory()) if e.source == str(clip.resolve())),
+                key=lambda e: e.last_used)  # fmt: skip
+    return {"open_or_build_s": build_s, "mib": entry.bytes / 2**20, "frames": entry.frames,
+            "mib_per_frame": entry.bytes / 2**20 / entry.frames, "folder": str(entry.folder)}  # fmt: skip
+
+
+def ref_version(python: str) -> str:
+    out = subprocess.run([python, "-c", "import importlib.metadata as m; print(m.version('viva-safeland'))"],
+                         capture_output=True, text=True, check=True)  # fmt: skip
+    return out.stdout.strip()
+
+
 def per_hour(r: dict[str, Any]) -> tuple[float, float]:
     """(trials per hour as run, 60 s trials per hour: normalised to 60 s of flight each)."""
     return 3600.0 * r["trials"] / r["wall_s"], 3600.0 * (r["sim_s"] / TRIAL_S) / r["wall_s"]
@@ -229,8 +268,19 @@ def main() -> int:
         "--frames", type=int, default=60, help="frames of the 4K bench clip (bench_core.make_clip)"
     )
     ap.add_argument(
-        "--variants", nargs="+", default=["video", "tiles"], choices=["video", "tiles", "tiles-raw"]
+        "--variants",
+        nargs="+",
+        default=["default", "video"],
+        choices=["default", "video", "tiles", "tiles-raw"],
     )
+    ap.add_argument(
+        "--ref-python-also",
+        nargs="*",
+        default=[],
+        help="more reference interpreters (e.g. viva-safeland 0.2.5), timed in the same rounds",
+    )
+    ap.add_argument("--auto-cache-dir", type=Path, default=DEFAULT_CACHE / "tiles-auto",
+                    help="folder of the 'default' variant's automatic cache (a fresh folder: the first build)")  # fmt: skip
     ap.add_argument("--no-floor", action="store_true", help="skip the floor measurement")
     add_tile_cache_arg(ap)  # the pool's workers inherit it
     ap.add_argument("--read", choices=["cv2", "numpy"], default="cv2",
@@ -239,9 +289,17 @@ def main() -> int:
     os.environ[READ_ENV] = args.read
     apply_tile_cache(ap, args)
     from bench.bench_tiles import make_tiles
+    from viva_sitl.footage import autocache
 
     clip = make_clip(DEFAULT_CACHE, args.frames)
-    footage = {"video": clip}
+    footage = {"video": clip, "default": clip}
+    policies: dict[str, Any] = {v: None for v in args.variants}
+    policies["video"] = autocache.CachePolicy(enabled=False)  # the video itself (`--no-cache`)
+    policies["default"] = autocache.CachePolicy(root=args.auto_cache_dir, show_progress=False)
+    # nothing this bench opens writes to the user's ~/.cache: the process's policy is the default one, in its folder
+    autocache.set_policy(policies["default"])
+    auto_cache = build_auto_cache(clip, policies["default"]) if "default" in args.variants else None
+    refs = {"ref": args.ref_python, **{f"ref_{ref_version(py)}": py for py in args.ref_python_also}}
     if "tiles" in args.variants:
         footage["tiles"] = make_tiles(clip, "jpeg")
     if "tiles-raw" in args.variants:
@@ -249,15 +307,15 @@ def main() -> int:
     res: dict[str, Any] = {
         "machine": f"{platform.node()} {platform.machine()} {os.cpu_count()} cpus, {platform.python_version()}",
         "load_avg_before": os.getloadavg(), "clip": str(clip), "jobs": args.jobs, "read": args.read,
-        "tile_cache_mb": args.tile_cache_mb, "rounds": [],
+        "tile_cache_mb": args.tile_cache_mb, "ref_version": ref_version(args.ref_python), "auto_cache": auto_cache,
+        "rounds": [],
     }  # fmt: skip
     for _ in range(args.rounds):
-        rnd: dict[str, Any] = {
-            "load_avg": os.getloadavg(),
-            "ref": ref(args.ref_python, clip, args.trials, args.jobs, args.read),
-        }
+        rnd: dict[str, Any] = {"load_avg": os.getloadavg()}
+        for k, py in refs.items():
+            rnd[k] = ref(py, clip, args.trials, args.jobs, args.read)
         for v in args.variants:
-            rnd[f"ours_{v}"] = ours(footage[v], args.trials, args.jobs)
+            rnd[f"ours_{v}"] = ours(footage[v], args.trials, args.jobs, policies[v])
         rnd["load_avg_after"] = os.getloadavg()
         res["rounds"].append(rnd)
     res["load_avg_after"] = os.getloadavg()
@@ -271,7 +329,11 @@ def main() -> int:
         res[f"ours_{v}_60s_trials_per_hour"] = med([h[1] for h in ours_h])
         # per round (same-run pairs), then the median of the ratios
         res[f"ratio_{v}_60s"] = med([o[1] / r[1] for o, r in zip(ours_h, ref_h, strict=True)])
-        res[f"ours_{v}_rss_mb_per_trial_process"] = ours_memory(footage[v])
+        for k in list(refs)[1:]:
+            k_h = [per_hour(r[k]) for r in res["rounds"]]
+            res[f"ratio_{v}_60s_vs_{k}"] = med([o[1] / r[1] for o, r in zip(ours_h, k_h, strict=True)])
+        with autocache.using_policy(policies[v] or policies["default"]):
+            res[f"ours_{v}_rss_mb_per_trial_process"] = ours_memory(footage[v])
     res["ref_rss_mb_per_process"] = max(r["ref"]["max_rss_mb"] for r in res["rounds"])
     res["ref_cpu_ms_per_step"] = med([r["ref"]["cpu_ms_per_step"] for r in res["rounds"]])
     if not args.no_floor:

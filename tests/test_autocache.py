@@ -5,6 +5,7 @@ reading it; a corrupt cache is rebuilt with one line; the size bound evicts the 
 
 from __future__ import annotations
 
+import json
 import logging
 import math
 import os
@@ -336,3 +337,38 @@ def test_a_spawned_trial_worker_opens_footage_under_the_policy_it_is_handed(tmp_
             p.kill()
     assert index == scenario.index and row["end"] == "landed", row
     assert [e.source for e in autocache.list_caches(root)] == [str(clip.resolve())]
+
+
+@pytest.mark.slow
+def test_trials_search_hands_the_cache_flags_to_its_pool_workers(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """`trials search --jobs 2` flies in a spawned pool whose workers open the (4K: heavy) footage under the
+    search's policy, as `trials run`'s do: `--tile-cache-dir D` builds the cache in D and the workers read it there;
+    `--no-cache` builds none; no worker falls back to the user cache directory (a worker without the policy builds
+    its own cache there); this process's policy is restored after."""
+    from viva_sitl.evaluation.cli import trials_main
+
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))  # spawned workers inherit it
+    clip = _clip(tmp_path / "clip", "searchuhd", frames=2, w=3840, h=2160)
+    spec = tmp_path / "spec.toml"
+    spec.write_text(
+        '[trials]\nname = "searched"\nn = 1\nseed = 2\ntimeout_s = 30.0\n[scenario]\n'
+        f'footage = "{clip}"\nstart = "air"\nnorth_m = [-5.0, 5.0]\neast_m = [-5.0, 5.0]\naltitude_m = [6.0, 8.0]\n'
+        "land_at_s = 0.5\n",
+        encoding="utf-8",
+    )
+    mine = CachePolicy(root=tmp_path / "mine", show_progress=False)
+    with autocache.using_policy(mine):
+        for flags, root in (([], tmp_path / "flagged"), (["--no-cache"], tmp_path / "off")):
+            out = tmp_path / f"out{len(flags)}"
+            argv = ["search", str(spec), "--pilot", "descend", "--budget", "2", "--batch", "2", "--jobs", "2",
+                    "--max-failures", "0", "-o", str(out)]  # fmt: skip
+            assert trials_main([*argv, "--tile-cache-dir", str(root), *flags]) == 0
+            rows = [t["result"] for t in json.loads((out / "search.json").read_text())["trials"]]
+            assert len(rows) == 2 and all(r["end"] == "landed" for r in rows), rows
+            built = autocache.list_caches(root) if root.exists() else []
+            assert [e.source for e in built] == ([] if flags else [str(clip.resolve())])
+            assert not (tmp_path / "xdg").exists()
+        assert autocache.policy() == mine
+    assert not (tmp_path / "mine").exists()

@@ -147,7 +147,7 @@ def add_cache_args(p: argparse.ArgumentParser) -> None:
     g.add_argument(
         "--cache-max-gb", type=positive_float, default=32.0,
         help="size bound of all automatic tile caches together; least recently used caches are removed "
-        "(default 32; ~7-9 MiB per 4K frame, ~15 GB per minute of 30 fps 4K)",
+        "(default 32; ~8.6 MiB per 4K frame, ~15 GiB per minute of 30 fps 4K, ~29 MiB per 8K frame)",
     )  # fmt: skip
     g.add_argument(
         "--tile-cache-dir", type=Path, help="where they go (default $XDG_CACHE_HOME/viva-sitl/tiles-auto)"

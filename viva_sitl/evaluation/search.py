@@ -309,6 +309,15 @@ def _fly(job: tuple[TrialSpec, Scenario, str, str]) -> dict[str, Any]:
     return row
 
 
+def _init_worker(cache_policy: Any, tiles: Any, threads: int) -> None:
+    """A pool worker (spawned: none of the parent's state) opens footage as `trials run`'s workers do: under the
+    search's automatic-cache policy and tile settings, handed as arguments."""
+    from viva_sitl.evaluation.campaign import _use_cache_policy, _use_tile_settings
+
+    _use_tile_settings(tiles, threads)
+    _use_cache_policy(cache_policy)
+
+
 class _Flyer:
     """Flies batches of fixed specs, in this process (jobs = 1) or a spawn pool; results in input order."""
 
@@ -318,9 +327,17 @@ class _Flyer:
         self.pool: ProcessPoolExecutor | None = None
         if jobs > 1:
             import multiprocessing as mp
+            import os
             from concurrent.futures import ProcessPoolExecutor
 
-            self.pool = ProcessPoolExecutor(jobs, mp_context=mp.get_context("spawn"))
+            from viva_sitl.footage import autocache
+            from viva_sitl.footage.tiles.settings import process_settings
+
+            threads = max(1, (os.cpu_count() or 1) // jobs)  # as a campaign's workers: the cores left to each
+            self.pool = ProcessPoolExecutor(
+                jobs, mp_context=mp.get_context("spawn"), initializer=_init_worker,
+                initargs=(autocache.policy(), process_settings(), threads),
+            )  # fmt: skip
 
     def fly(self, specs: list[TrialSpec], boxes: dict[str, FootageBox]) -> list[dict[str, Any]]:
         from viva_sitl.evaluation.spec import draw_scenario
@@ -732,7 +749,7 @@ def write_search(res: SearchResult, out: Path) -> list[Path]:
 
 def add_search_parser(sub: Any) -> None:
     """`viva-sitl trials search` (wired in evaluation/cli.py)."""
-    from viva_sitl.cliargs import nonneg_int, pos_int
+    from viva_sitl.cliargs import add_cache_args, nonneg_int, pos_int
 
     s = sub.add_parser("search", help="search a spec's scenario space for scenarios where a pilot fails")
     s.add_argument("spec", help="trial spec (TOML): its ranges are the space searched")
@@ -757,9 +774,19 @@ def add_search_parser(sub: Any) -> None:
         "--jobs", type=pos_int, default=1, help="parallel trials (default 1; the result is the same)"
     )
     s.add_argument("--force", action="store_true", help="replace what OUT holds")
+    add_cache_args(s)  # --no-cache / --cache-max-gb / --tile-cache-dir, as on `trials run`; its workers' too
 
 
 def search_main(args: Any) -> int:
+    from viva_sitl.footage import autocache
+
+    # `--no-cache / --cache-max-gb / --tile-cache-dir` change this process's automatic-cache policy for this search
+    # only (its footage boxes, its trials, the failure specs written); its pool's workers are handed it
+    with autocache.using_policy(autocache.from_flags(args.no_cache, args.cache_max_gb, args.tile_cache_dir)):
+        return _search_main(args)
+
+
+def _search_main(args: Any) -> int:
     import sys
 
     from viva_sitl.evaluation.spec import load_spec
