@@ -9,6 +9,7 @@ import asyncio
 import math
 import time
 from collections.abc import Callable
+from typing import Any
 
 import pytest
 from pymavlink.dialects.v20 import common as mavlink2
@@ -34,6 +35,32 @@ def ne_of(lat0: float, lon0: float, lat: float, lon: float) -> tuple[float, floa
     )
 
 
+async def _home_when_ready(telemetry: Any) -> Any:
+    """Wait (30 s) for a global position and home, as MAVSDK's examples do; returns home."""
+    async with asyncio.timeout(30):
+        async for health in telemetry.subscribe_health():
+            if health.is_global_position_ok and health.is_home_position_ok:
+                break
+    return await anext(aiter(telemetry.subscribe_home()))
+
+
+async def _take_off(action: Any, telemetry: Any) -> None:
+    """Arm, take off, wait (60 s) until above 2 m."""
+    await action.arm()
+    await action.takeoff()
+    async with asyncio.timeout(60):
+        async for position in telemetry.subscribe_position():
+            if position.relative_altitude_m > 2.0:
+                break
+
+
+async def _wait_mode(telemetry: Any, mode: Any) -> None:
+    async with asyncio.timeout(10):
+        async for m in telemetry.subscribe_flight_mode():
+            if m == mode:
+                break
+
+
 def test_mavsdk_follow_me(sitl: SitlProcess, peer_factory: Callable[[int], MavlinkPeer]) -> None:
     from mavsdk.asyncio import ComponentType, Configuration, Mavsdk
     from mavsdk.asyncio.plugins.action import ActionAsync
@@ -51,26 +78,14 @@ def test_mavsdk_follow_me(sitl: SitlProcess, peer_factory: Callable[[int], Mavli
             assert system is not None, "no autopilot discovered"
             action, telemetry = ActionAsync(system), TelemetryAsync(system)
             follow, param = FollowMeAsync(system), ParamAsync(system)
-            async with asyncio.timeout(30):
-                async for health in telemetry.subscribe_health():
-                    if health.is_global_position_ok and health.is_home_position_ok:
-                        break
-            home = await anext(aiter(telemetry.subscribe_home()))
+            home = await _home_when_ready(telemetry)
             await follow.set_config(Config(10.0, 6.0, 0.1, Config.FollowAltitudeMode.CONSTANT, 8.0, 180.0))
             assert await param.get_param_float("FLW_TGT_HT") == pytest.approx(10.0)
             assert await param.get_param_float("FLW_TGT_DST") == pytest.approx(6.0)
-            await action.arm()
-            await action.takeoff()
-            async with asyncio.timeout(60):
-                async for position in telemetry.subscribe_position():
-                    if position.relative_altitude_m > 2.0:
-                        break
+            await _take_off(action, telemetry)
             following_since = time.monotonic()
             await follow.start()
-            async with asyncio.timeout(10):
-                async for mode in telemetry.subscribe_flight_mode():
-                    if mode == FlightMode.FOLLOW_ME:
-                        break
+            await _wait_mode(telemetry, FlightMode.FOLLOW_ME)
             assert await follow.is_active()
 
             async def fly_to(target_ne: tuple[float, float], want_ne: tuple[float, float]) -> float:
@@ -104,10 +119,7 @@ def test_mavsdk_follow_me(sitl: SitlProcess, peer_factory: Callable[[int], Mavli
             # the target moves 20 m east: the vehicle follows it there
             await fly_to((30.0, 20.0), (24.0, 20.0))
             await follow.stop()
-            async with asyncio.timeout(10):
-                async for mode in telemetry.subscribe_flight_mode():
-                    if mode == FlightMode.HOLD:
-                        break
+            await _wait_mode(telemetry, FlightMode.HOLD)
             await action.land()
             async with asyncio.timeout(60):
                 async for armed in telemetry.subscribe_armed():
@@ -145,23 +157,11 @@ def test_mavsdk_follow_me_with_the_camera_component_on(
             system = await mavsdk.first_autopilot(timeout_s=15.0)
             assert system is not None, "no autopilot discovered"
             action, telemetry, follow = ActionAsync(system), TelemetryAsync(system), FollowMeAsync(system)
-            async with asyncio.timeout(30):
-                async for health in telemetry.subscribe_health():
-                    if health.is_global_position_ok and health.is_home_position_ok:
-                        break
-            home = await anext(aiter(telemetry.subscribe_home()))
+            home = await _home_when_ready(telemetry)
             await follow.set_config(Config(8.0, 5.0, 0.1, Config.FollowAltitudeMode.CONSTANT, 8.0, 180.0))
-            await action.arm()
-            await action.takeoff()
-            async with asyncio.timeout(60):
-                async for position in telemetry.subscribe_position():
-                    if position.relative_altitude_m > 2.0:
-                        break
+            await _take_off(action, telemetry)
             await follow.start()
-            async with asyncio.timeout(10):
-                async for mode in telemetry.subscribe_flight_mode():
-                    if mode == FlightMode.FOLLOW_ME:
-                        break
+            await _wait_mode(telemetry, FlightMode.FOLLOW_ME)
             lat, lon = offset(home.latitude_deg, home.longitude_deg, 25.0, 0.0)
             target = TargetLocation(lat, lon, home.absolute_altitude_m, 0.0, 0.0, 0.0)
             accepted = 0
