@@ -168,9 +168,8 @@ class PilotGate:
             prev = cur
             if cur.quiet:  # it has just finished (or a timer thread ran): confirm soon
                 nap = NAP_MIN_S
-                if (
-                    quick
-                ):  # the first time in a quantum after the drain alone, then after a nap (no busy polling)
+                # the first time in a quantum after the drain alone, then after a nap (no busy polling)
+                if quick:
                     quick = False
                     continue
             if nap >= SETTLE_S:
@@ -178,11 +177,9 @@ class PilotGate:
             else:
                 time.sleep(nap)  # sub-millisecond (the event loop's timers are in whole ms); drained next
                 nap *= 2
-        end = time.monotonic()
-        last = cur  # the newest look: the pilot's CPU up to now
-        self._last = last
+        last = self._last = cur  # the newest look: the pilot's CPU up to now
         self.stats.observe(last)
-        waited = end - t0
+        waited = time.monotonic() - t0
         if waited > WAITED_S:
             self.stats.waited += 1
         self.stats.busy_wall_s += waited
