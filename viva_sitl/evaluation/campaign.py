@@ -115,17 +115,20 @@ def failed_row(spec: TrialSpec, scenario: Scenario, end: TrialEnd, detail: str) 
 # ----------------------------------------------------------------------------------------- local pool
 
 
-def _use_tile_settings(tiles: TileSettings, threads: int) -> None:
-    """A worker (spawned: no state of the parent's) reads tile caches with the campaign's settings (an argument,
-    not its environment), decoding on the cores left to it unless the user chose the threads. With as many workers
-    as cores, a tile cache's decode pool only adds hand-offs (measured: 6-trial jpeg-tile campaigns 8-10 % faster
-    with 1)."""
-    set_process_settings(tiles.or_threads(threads))
+def worker_threads(jobs: int) -> int:
+    """The cores left to each of `jobs` trial workers: their tile decode threads unless the user chose them."""
+    return max(1, (os.cpu_count() or 1) // max(1, jobs))
 
 
-def _use_cache_policy(cache_policy: autocache.CachePolicy | None) -> None:
-    """A worker (spawned: no state of the parent's) opens footage under the campaign's automatic-cache policy
-    (`trials run --no-cache / --cache-max-gb`, or the caller's `autocache.set_policy`)."""
+def init_trial_worker(
+    cache_policy: autocache.CachePolicy | None, tiles: TileSettings | None, threads: int
+) -> None:
+    """A trial worker (spawned: no state of the parent's; a campaign's, a Ray task, a search's pool) opens footage
+    as its parent asked, handed as arguments, not through its environment: under the automatic-cache policy
+    (`--no-cache / --cache-max-gb`, or the caller's `autocache.set_policy`) and the tile settings, decoding on the
+    `threads` cores left to it unless the user chose the threads. With as many workers as cores, a tile cache's
+    decode pool only adds hand-offs (measured: 6-trial jpeg-tile campaigns 8-10 % faster with 1)."""
+    set_process_settings((tiles if tiles is not None else TileSettings()).or_threads(threads))
     if cache_policy is not None:
         autocache.set_policy(cache_policy)
 
@@ -137,10 +140,7 @@ def _ray_one(spec: TrialSpec, scenario: Scenario, pilot: str, out_dir: str, slot
     the driver's marker file there), else (row, the folder as a .tar.gz) for the driver to unpack."""
     # (cache_policy, tiles: Any, not CachePolicy / TileSettings: ray's typed .remote() overloads stop at 7 typed
     # parameters)
-    _use_tile_settings(
-        tiles if tiles is not None else TileSettings(), 1
-    )  # the task reserved one CPU (num_cpus=1)
-    _use_cache_policy(cache_policy)
+    init_trial_worker(cache_policy, tiles, 1)  # the task reserved one CPU (num_cpus=1)
     shared = os.path.exists(marker)
     if shared and os.path.isdir(driver_cwd):
         # the driver's own files: relative paths (footage, an external pilot's script) resolve as they do there
@@ -176,8 +176,7 @@ def _worker(slot: int, conn: Connection, results: Any, spec: TrialSpec, pilot: s
             threads: int, cache_policy: autocache.CachePolicy | None = None,
             tiles: TileSettings | None = None) -> None:  # fmt: skip
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent handles Ctrl-C and stops us with SIGTERM
-    _use_tile_settings(tiles if tiles is not None else TileSettings(), threads)
-    _use_cache_policy(cache_policy)
+    init_trial_worker(cache_policy, tiles, threads)
 
     def _term(*_: object) -> None:
         raise SystemExit(143)  # unwinds: the trial's finally blocks end the processes it started
@@ -210,7 +209,7 @@ def _local(spec: TrialSpec, pilot: str, todo: list[Scenario], out_dir: Path, job
     queue = list(todo)
     by_index = {s.index: s for s in todo}
     slots: dict[int, _Slot] = {}
-    threads = max(1, (os.cpu_count() or 1) // max(1, jobs))
+    threads = worker_threads(jobs)
 
     def start(slot: int) -> _Slot:
         parent, child = ctx.Pipe()

@@ -309,15 +309,6 @@ def _fly(job: tuple[TrialSpec, Scenario, str, str]) -> dict[str, Any]:
     return row
 
 
-def _init_worker(cache_policy: Any, tiles: Any, threads: int) -> None:
-    """A pool worker (spawned: none of the parent's state) opens footage as `trials run`'s workers do: under the
-    search's automatic-cache policy and tile settings, handed as arguments."""
-    from viva_sitl.evaluation.campaign import _use_cache_policy, _use_tile_settings
-
-    _use_tile_settings(tiles, threads)
-    _use_cache_policy(cache_policy)
-
-
 class _Flyer:
     """Flies batches of fixed specs, in this process (jobs = 1) or a spawn pool; results in input order."""
 
@@ -327,16 +318,16 @@ class _Flyer:
         self.pool: ProcessPoolExecutor | None = None
         if jobs > 1:
             import multiprocessing as mp
-            import os
             from concurrent.futures import ProcessPoolExecutor
 
+            from viva_sitl.evaluation.campaign import init_trial_worker, worker_threads
             from viva_sitl.footage import autocache
             from viva_sitl.footage.tiles.settings import process_settings
 
-            threads = max(1, (os.cpu_count() or 1) // jobs)  # as a campaign's workers: the cores left to each
+            # its workers open footage as a campaign's do (cache policy, tile settings, the cores left to each)
             self.pool = ProcessPoolExecutor(
-                jobs, mp_context=mp.get_context("spawn"), initializer=_init_worker,
-                initargs=(autocache.policy(), process_settings(), threads),
+                jobs, mp_context=mp.get_context("spawn"), initializer=init_trial_worker,
+                initargs=(autocache.policy(), process_settings(), worker_threads(jobs)),
             )  # fmt: skip
 
     def fly(self, specs: list[TrialSpec], boxes: dict[str, FootageBox]) -> list[dict[str, Any]]:
