@@ -162,6 +162,38 @@ def test_yuv420z_tiles_render_within_the_stated_psnr_and_decode_each_level(
         tiled.close()
 
 
+def test_yuv420z_regions_into_bgra_equal_the_bgr_pixels_whichever_the_lru_holds(
+    caches: dict[str, Path],
+) -> None:
+    """The renderer's paste asks for BGRA: yuv420z's zstd tiles are then decoded straight to BGRA (one YUV -> BGRA
+    pass). The pixels equal the BGR decode's exactly, alpha 255, whether the tile was decoded for this request
+    (LRU of 1 byte), or is served from the LRU decoded for the other channel count (BGR first, then BGRA, and the
+    reverse); `tile()` gives BGR either way."""
+    box = (1, 0, 16, 50, 400, 301)  # frame, level, x0, y0, x1, y1: level 0 (zstd 4:2:0), several tiles
+    outputs: dict[str, list[np.ndarray]] = {}
+    for name, cap, order in (("fresh", 1, ("bgr", "bgra")), ("bgr first", 1 << 28, ("bgr", "bgra")),
+                             ("bgra first", 1 << 28, ("bgra", "bgr"))):  # fmt: skip
+        src = open_footage(str(caches["yuv420z"]))
+        assert isinstance(src, TileSource)
+        src.cache.cache_bytes = cap
+        try:
+            got = {}
+            for kind in order:
+                f, lv, x0, y0, x1, y1 = box
+                out = np.zeros((y1 - y0, x1 - x0, 4 if kind == "bgra" else 3), np.uint8)
+                got[kind] = src.region(f, lv, x0, y0, x1, y1, out=out).copy()
+            assert np.all(got["bgra"][..., 3] == 255), name
+            assert np.array_equal(got["bgra"][..., :3], got["bgr"]), name
+            assert src.cache.tile(1, 0, 0, 0).shape[2] == 3
+            outputs[name] = [got["bgr"], got["bgra"]]
+        finally:
+            src.close()
+    assert all(np.array_equal(a, b) for a, b in zip(outputs["fresh"], outputs["bgra first"], strict=True))
+    # the zstd path was the one taken (level 0 of yuv420z is always zstd 4:2:0)
+    assert _decode(_encode(np.zeros((16, 16, 3), np.uint8), "yuv420z", 95, 0), "yuv420z", bgra=True).shape == (
+        16, 16, 4)  # fmt: skip
+
+
 def test_yuv420z_level_1_tiles_are_4_2_0_only_where_that_keeps_the_bound() -> None:
     """Level 0 is always zstd 4:2:0; a level-1 tile is zstd 4:2:0 when its round trip keeps the bound (smooth
     chroma, as in video), jpeg 4:4:4 when 4:2:0 would blur sharp colour edges; level 2 is jpeg; all decode back."""

@@ -128,7 +128,9 @@ def _encode_yuvz(tile: U8, min_psnr_db: float | None = None) -> bytes | None:
 _zstd_local = threading.local()
 
 
-def _decode_yuvz(data: bytes | memoryview) -> U8 | None:
+def _decode_yuvz(data: bytes | memoryview, bgra: bool = False) -> U8 | None:
+    """A yuv420z tile's BGR pixels (with `bgra`: BGRA, alpha 255, converted from YUV in the same pass); None when
+    the bytes are not one."""
     import zstandard
 
     if len(data) < 8 or bytes(data[:4]) != _YUVZ_MAGIC:
@@ -145,8 +147,9 @@ def _decode_yuvz(data: bytes | memoryview) -> U8 | None:
         return None
     if len(raw) != ew * eh * 3 // 2:
         return None
-    bgr = cv2.cvtColor(np.frombuffer(raw, np.uint8).reshape(eh * 3 // 2, ew), cv2.COLOR_YUV2BGR_I420)
-    return np.asarray(bgr if (ew, eh) == (w, h) else bgr[:h, :w], dtype=np.uint8)
+    code = cv2.COLOR_YUV2BGRA_I420 if bgra else cv2.COLOR_YUV2BGR_I420
+    img = cv2.cvtColor(np.frombuffer(raw, np.uint8).reshape(eh * 3 // 2, ew), code)
+    return np.asarray(img if (ew, eh) == (w, h) else img[:h, :w], dtype=np.uint8)
 
 
 def _encode(tile: U8, codec: str, quality: int, level: int = 0) -> bytes:
@@ -176,7 +179,9 @@ def _encode(tile: U8, codec: str, quality: int, level: int = 0) -> bytes:
     return bytes(buf)
 
 
-def _decode(data: bytes | memoryview, codec: str) -> U8 | None:
+def _decode(data: bytes | memoryview, codec: str, bgra: bool = False) -> U8 | None:
+    """A tile's pixels: BGR, or with `bgra` BGRA where the codec converts to it in the same pass (yuv420z's zstd
+    tiles: a BGR -> BGRA pass of the renderer's paste saved); the caller checks the channels it got."""
     if codec == "raw":
         if len(data) < 8 or bytes(data[:4]) != _RAW_MAGIC:
             return None
@@ -186,7 +191,7 @@ def _decode(data: bytes | memoryview, codec: str) -> U8 | None:
             return None
         return np.frombuffer(data, np.uint8, offset=8).reshape(h, w, 3)
     if codec == "yuv420z" and bytes(data[:4]) == _YUVZ_MAGIC:
-        return _decode_yuvz(data)
+        return _decode_yuvz(data, bgra)
     img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
     return None if img is None else np.asarray(img, dtype=np.uint8)
 

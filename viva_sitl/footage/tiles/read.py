@@ -156,13 +156,14 @@ class TileCache:
             raise self._error(f"{where}: checksum mismatch")
         return data
 
-    def _decoded(self, frame: int, level: int, tx: int, ty: int, data: bytes) -> U8:
-        """Decode checked bytes, check the size, keep the tile in the LRU."""
-        img = _decode(data, self.codec)
+    def _decoded(self, frame: int, level: int, tx: int, ty: int, data: bytes, bgra: bool = False) -> U8:
+        """Decode checked bytes (BGR, or BGRA where the codec converts to it in the same pass and `bgra` asks),
+        check the size, keep the tile in the LRU."""
+        img = _decode(data, self.codec, bgra)
         lw, lh = self.layout.levels[level]
         ts = self.layout.tile_px
-        want = (min(ts, lh - ty * ts), min(ts, lw - tx * ts), 3)
-        if img is None or img.shape != want:
+        want = (min(ts, lh - ty * ts), min(ts, lw - tx * ts))
+        if img is None or img.ndim != 3 or img.shape[:2] != want or img.shape[2] not in (3, 4):
             raise self._error(f"frame {frame} level {level} tile ({tx}, {ty}): does not decode to a "
                               f"{want[1]}x{want[0]} image")  # fmt: skip
         img.setflags(write=False)
@@ -178,9 +179,13 @@ class TileCache:
         return img
 
     def tile(self, frame: int, level: int, tx: int, ty: int) -> U8:
-        """The decoded tile (read-only), checked against its length, checksum and expected size."""
+        """The decoded tile as BGR (read-only), checked against its length, checksum and expected size."""
         got = self._read(frame, level, tx, ty)
-        return got if isinstance(got, np.ndarray) else self._decoded(frame, level, tx, ty, got)
+        img = got if isinstance(got, np.ndarray) else self._decoded(frame, level, tx, ty, got)
+        if img.shape[2] == 4:  # kept as BGRA for the renderer's paste
+            img = np.asarray(cv2.cvtColor(img, cv2.COLOR_BGRA2BGR), np.uint8)
+            img.setflags(write=False)
+        return img
 
     def tiles_under(
         self,
@@ -234,8 +239,9 @@ class TileCache:
     ) -> U8:
         """Level `level` pixels [y0:y1, x0:x1] of frame `frame`, assembled from the tiles under them (with `quad`:
         only the tiles within `margin_px` of that polygon; the rest of `out` is left as it was). Tiles missing
-        from the LRU are decoded on `decode_threads` threads. A 4-channel `out` receives BGRA (alpha 255): each
-        tile is converted as it is pasted, one pass instead of a copy and a conversion."""
+        from the LRU are decoded on `decode_threads` threads. A 4-channel `out` receives BGRA (alpha 255): a
+        yuv420z tile is decoded straight to BGRA (YUV -> BGRA in one pass, then copied), any other tile converted as
+        it is pasted; a tile the LRU holds in the other channel count is converted as it is pasted."""
         lw, lh = self.layout.levels[level]
         if not (0 <= x0 < x1 <= lw and 0 <= y0 < y1 <= lh):
             raise ValueError(f"region ({x0}, {y0})-({x1}, {y1}) outside level {level} ({lw}x{lh})")
@@ -250,10 +256,10 @@ class TileCache:
         misses = [i for i, g in enumerate(got) if not isinstance(g, np.ndarray)]
         if len(misses) > 1 and self._pool is not None:
             decoded = list(
-                self._pool.map(lambda i: self._decoded(frame, level, *todo[i], got[i]), misses)  # type: ignore[arg-type]
+                self._pool.map(lambda i: self._decoded(frame, level, *todo[i], got[i], bgra), misses)  # type: ignore[arg-type]
             )
         else:
-            decoded = [self._decoded(frame, level, *todo[i], got[i]) for i in misses]  # type: ignore[arg-type]
+            decoded = [self._decoded(frame, level, *todo[i], got[i], bgra) for i in misses]  # type: ignore[arg-type]
         for i, img in zip(misses, decoded, strict=True):
             got[i] = img
         for (tx, ty), tile in zip(todo, got, strict=True):
@@ -262,10 +268,11 @@ class TileCache:
             sx0, sy0 = max(x0, ax0), max(y0, ay0)
             sx1, sy1 = min(x1, ax0 + tile.shape[1]), min(y1, ay0 + tile.shape[0])
             part = tile[sy0 - ay0 : sy1 - ay0, sx0 - ax0 : sx1 - ax0]
-            if bgra:
-                cv2.cvtColor(part, cv2.COLOR_BGR2BGRA, dst=out[sy0 - y0 : sy1 - y0, sx0 - x0 : sx1 - x0])
+            dst = out[sy0 - y0 : sy1 - y0, sx0 - x0 : sx1 - x0]
+            if part.shape[2] == dst.shape[2]:
+                dst[...] = part
             else:
-                out[sy0 - y0 : sy1 - y0, sx0 - x0 : sx1 - x0] = part
+                cv2.cvtColor(part, cv2.COLOR_BGR2BGRA if bgra else cv2.COLOR_BGRA2BGR, dst=dst)
         return out
 
     def close(self) -> None:
