@@ -794,23 +794,23 @@ def main() -> int:
             keys[0]: runners[keys[0]].info for keys in refs.values() if keys[0] != "ref"
         }
         result["reference_runs"] = {
-            label: [k for k in (video, still) if k in runners] for label, (video, still, _) in refs.items()
+            label: [k for k in (v_run, s_run) if k in runners] for label, (v_run, s_run, _) in refs.items()
         }
         result["ratio_vs"] = {
             label: {
-                k: v / med[_ref_of(k, video, still)]
+                k: v / med[_ref_of(k, v_run, s_run)]
                 for k, v in med.items()
-                if not k.startswith("ref") and _ref_of(k, video, still) in med
+                if not k.startswith("ref") and _ref_of(k, v_run, s_run) in med
             }
-            for label, (video, still, _) in refs.items()
+            for label, (v_run, s_run, _) in refs.items()
         }
         result["cpu_ratio_vs"] = {
             label: {
-                k: cpu_med[_ref_of(k, video, still)] / v
+                k: cpu_med[_ref_of(k, v_run, s_run)] / v
                 for k, v in cpu_med.items()
-                if not k.startswith("ref") and _ref_of(k, video, still) in cpu_med
+                if not k.startswith("ref") and _ref_of(k, v_run, s_run) in cpu_med
             }
-            for label, (video, still, _) in refs.items()
+            for label, (v_run, s_run, _) in refs.items()
         }
     text = json.dumps(result, indent=2)
     print(text)
