@@ -162,7 +162,7 @@ def main() -> None:
         if v
     }
     single_w, single_c = med["single"]
-    rows = []
+    rows: list[dict[str, Any]] = []
     for k, (w, c) in med.items():
         rows.append({
             "variant": k, "env_steps_per_s": 1e3 / w, "wall_ms_per_env_step": w, "cpu_ms_per_env_step": c,
