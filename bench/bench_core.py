@@ -26,7 +26,10 @@ In the *_250 variants one "step" (1/30 s) holds 8 or 9 physics steps and one ren
 when a user steps 250 Hz physics and renders at the camera rate; the tables also give physics steps/s for them.
 
 `ref` is DroneEnv over the 4K video (one decoded frame per step); `ref_still` is DroneEnv(fixed=True) over the
-same video (its first frame, read once; it still copies the 4K frame every step).
+same video (its first frame, read once; 0.2.0 still copies the 4K frame every step, 0.2.5 no longer does).
+`--ref-python-also PY ...`: further reference interpreters (e.g. viva-safeland 0.2.5 beside 0.2.0), timed in the same
+rounds as `ref_<version>` / `ref_<version>_still` (version read from each interpreter); every ours-vs-reference ratio
+(JSON `ratio_vs` / `cpu_ratio_vs`, stderr, markdown) is then given against each reference, labelled "vs <version>".
 
 The reference runs in its own interpreter (Python >= 3.12, `--ref-python`) as a long-lived subprocess
 (bench/reference/run_reference.py --serve), driven line by line, so rounds interleave A B A B ... and neither side
@@ -261,6 +264,14 @@ class Reference:
                 self.proc.wait()
 
 
+def reference_label(version: str, taken: Any) -> str:
+    """The "vs" label of a reference: its viva-safeland version, made unique among `taken` ("0.2.0#2", ...)."""
+    label, n = version, 2
+    while label in taken:
+        label, n = f"{version}#{n}", n + 1
+    return label
+
+
 def reference_available(python: str) -> str | None:
     """None when usable, else the reason to skip."""
     exe = shutil.which(python) if os.sep not in python else (python if os.path.exists(python) else None)
@@ -481,6 +492,8 @@ def check_dynamics(golden_path: Path) -> int:
 def to_markdown(result: dict[str, Any]) -> str:
     """The result as markdown tables (for bench/results_core.md)."""
     med, cpu = result["median_steps_per_s"], result["median_cpu_ms_per_step"]
+    if "ratio_vs" in result:  # --ref-python-also: the ratios against each reference, by its version
+        return _markdown_multi(result)
     lines = [
         f"z = {result['z_m']} m, z_o = {result['rel_alt_m']} m, VAC {result['out_size']}, "
         f"{result['steps_per_run']} steps/run, {result['rounds']} interleaved rounds, "
@@ -504,6 +517,53 @@ def to_markdown(result: dict[str, Any]) -> str:
             f"| {k} | {v:.1f} | {1e3 / v:.3f} | {r_wall} | {cpu[k]:.3f} | {r_cpu} | {ref if ours else ''} "
             f"| {v / 30.0:.2f} | {phys} |"
         )
+    return "\n".join(lines + _markdown_tail(result)) + "\n"
+
+
+def _markdown_multi(result: dict[str, Any]) -> str:
+    """to_markdown's main table with one pair of ratio columns (wall, CPU) per reference, labelled by version."""
+    med, cpu = result["median_steps_per_s"], result["median_cpu_ms_per_step"]
+    runs: dict[str, list[str]] = result.get("reference_runs", {})
+    wall_vs, cpu_vs = result["ratio_vs"], result["cpu_ratio_vs"]
+    labels = list(wall_vs)
+    video_runs = {v[0] for v in runs.values() if v}
+    lines = [
+        f"z = {result['z_m']} m, z_o = {result['rel_alt_m']} m, VAC {result['out_size']}, "
+        f"{result['steps_per_run']} steps/run, {result['rounds']} interleaved rounds, "
+        f"loadavg (1/5/15 min) at start {tuple(round(v, 2) for v in result['machine'].get('loadavg_start', ()))}, "
+        f"at end {tuple(round(v, 2) for v in result['machine']['loadavg'])}",
+        "",
+        "References, same rounds: "
+        + "; ".join(f"viva-safeland {label}: {', '.join(keys)}" for label, keys in runs.items())
+        + ". Ratios: wall = ours steps/s / the reference's, CPU = the reference's CPU ms/step / ours "
+        "(the still variants vs the reference's still run).",
+        "",
+        "| run | median steps/s | wall ms/step | CPU ms/step | "
+        + " | ".join(f"wall vs {label} | CPU vs {label}" for label in labels)
+        + " | sim s per wall s | physics steps/s |",
+        "|---|---:|---:|---:|" + "---:|---:|" * len(labels) + "---:|---:|",
+    ]
+    for k, v in med.items():
+        cells = []
+        for label in labels:
+            w, c = wall_vs[label].get(k), cpu_vs[label].get(k)
+            cells += ["" if w is None else f"{w:.2f}x", "" if c is None else f"{c:.2f}x"]
+        phys = (
+            f"{v * 250.0 / 30.0:.0f}"
+            if "_250" in k
+            else (f"{v:.0f}" if "paper" in k or k in video_runs else "")
+        )
+        lines.append(
+            f"| {k} | {v:.1f} | {1e3 / v:.3f} | {cpu[k]:.3f} | "
+            + " | ".join(cells)
+            + f" | {v / 30.0:.2f} | {phys} |"
+        )
+    return "\n".join(lines + _markdown_tail(result)) + "\n"
+
+
+def _markdown_tail(result: dict[str, Any]) -> list[str]:
+    """The breakdown and anti-aliasing tables of to_markdown."""
+    lines: list[str] = []
     bd = result.get("breakdown_ms_per_step") or {}
     if bd:
         lines += ["", "Breakdown, ms per step (one extra run after the rounds):", ""]
@@ -530,7 +590,7 @@ def to_markdown(result: dict[str, Any]) -> str:
                 lines.append(
                     f"| {name} | {r['z_m']:.1f} | {r['footage_px_per_output_px']:.2f} | {r['psnr_db']:.1f} |"
                 )
-    return "\n".join(lines) + "\n"
+    return lines
 
 
 # ---------------------------------------------------------------------------------------------- main
@@ -542,9 +602,9 @@ VARIANTS = (
 )  # fmt: skip
 
 
-def _ref_of(name: str) -> str:
+def _ref_of(name: str, video: str = "ref", still: str = "ref_still") -> str:
     """The reference run an 'ours' variant is compared with: the still scenario with DroneEnv(fixed=True)."""
-    return "ref_still" if name.startswith("ours_still") else "ref"
+    return still if name.startswith("ours_still") else video
 
 
 def machine() -> dict[str, Any]:
@@ -570,6 +630,11 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--ref-python", default=DEFAULT_REF_PYTHON, help="interpreter with viva-safeland 0.2.0")
     ap.add_argument("--no-ref", action="store_true", help="time ours only")
+    ap.add_argument(
+        "--ref-python-also", nargs="*", default=[],
+        help="further reference interpreters timed in the same rounds (e.g. viva-safeland 0.2.5's beside 0.2.0's): "
+        "runs ref_<version> (+ ref_<version>_still), every ratio also vs each of them",
+    )  # fmt: skip
     ap.add_argument(
         "--cache-dir", type=Path, default=DEFAULT_CACHE, help="where the 4K clip is generated (no dots)"
     )
@@ -618,14 +683,25 @@ def main() -> int:
     if unknown:
         raise SystemExit(f"unknown variant(s) {sorted(unknown)}; known: {', '.join(VARIANTS)}")
 
-    skip = "disabled by --no-ref" if args.no_ref else reference_available(args.ref_python)
-    if skip is None:
-        runners["ref"] = Reference(args.ref_python, clip, args)
+    # the references, by their "vs" label (the viva-safeland version the interpreter reports): runs and interpreter
+    refs: dict[str, tuple[str, str, str]] = {}  # label -> (video run, still run, python)
+    for i, python in enumerate([args.ref_python, *args.ref_python_also]):
+        skip = "disabled by --no-ref" if args.no_ref else reference_available(python)
+        if skip is not None:
+            notes.append(f"reference skipped: {skip}" if i == 0 else f"reference {python} skipped: {skip}")
+            print(
+                f"# SKIP reference: {skip}" if i == 0 else f"# SKIP reference {python}: {skip}",
+                file=sys.stderr,
+            )
+            continue
+        ref_run = Reference(python, clip, args)
+        label = reference_label(str(ref_run.info.get("version", "unknown")), refs)
+        key = "ref" if i == 0 else f"ref_{label}"
+        runners[key] = ref_run
+        still_key = "ref_still" if i == 0 else f"{key}_still"
         if any(v.startswith("still") for v in wanted):
-            runners["ref_still"] = Reference(args.ref_python, clip, args, fixed=True)
-    else:
-        notes.append(f"reference skipped: {skip}")
-        print(f"# SKIP reference: {skip}", file=sys.stderr)
+            runners[still_key] = Reference(python, clip, args, fixed=True)
+        refs[label] = (key, still_key, python)
 
     for name in wanted:
         paper = "paper" in name
@@ -674,10 +750,10 @@ def main() -> int:
                 sources.append(("songdo4k", SONGDO_STILL, SONGDO_REL_ALT_M))
             for label, path, alt in sources:
                 zs = [f * alt for f in args.quality_frac]
-                if skip is None:
-                    ref = Reference(args.ref_python, path, args, fixed=True, rel_alt_m=alt)
+                for key, _still_key, python in refs.values():
+                    ref = Reference(python, path, args, fixed=True, rel_alt_m=alt)
                     try:
-                        quality[f"ref_{label}"] = ref.ask("quality " + " ".join(str(z) for z in zs))
+                        quality[f"{key}_{label}"] = ref.ask("quality " + " ".join(str(z) for z in zs))
                     finally:
                         ref.close()
                 quality[f"ours_{label}"] = ours_quality(path, args, zs, alt)
@@ -713,6 +789,29 @@ def main() -> int:
         for k, v in cpu_med.items()
         if not k.startswith("ref") and _ref_of(k) in cpu_med
     }
+    if args.ref_python_also:  # the same ratios against every reference, labelled by its version
+        result["references_also"] = {
+            keys[0]: runners[keys[0]].info for keys in refs.values() if keys[0] != "ref"
+        }
+        result["reference_runs"] = {
+            label: [k for k in (v_run, s_run) if k in runners] for label, (v_run, s_run, _) in refs.items()
+        }
+        result["ratio_vs"] = {
+            label: {
+                k: v / med[_ref_of(k, v_run, s_run)]
+                for k, v in med.items()
+                if not k.startswith("ref") and _ref_of(k, v_run, s_run) in med
+            }
+            for label, (v_run, s_run, _) in refs.items()
+        }
+        result["cpu_ratio_vs"] = {
+            label: {
+                k: cpu_med[_ref_of(k, v_run, s_run)] / v
+                for k, v in cpu_med.items()
+                if not k.startswith("ref") and _ref_of(k, v_run, s_run) in cpu_med
+            }
+            for label, (v_run, s_run, _) in refs.items()
+        }
     text = json.dumps(result, indent=2)
     print(text)
     if args.json is not None:
@@ -720,6 +819,22 @@ def main() -> int:
     if args.markdown is not None:
         args.markdown.write_text(to_markdown(result), encoding="utf-8")
 
+    if args.ref_python_also:
+        print_multi_summary(result)
+    else:
+        print_summary(med, cpu_med)
+    for impl, rows in quality.items():
+        for q in rows:
+            print(
+                f"#   PSNR {impl:<18} z={q['z_m']:6.1f} m  {q['footage_px_per_output_px']:5.2f} footage px/px  "
+                f"{q['psnr_db']:5.1f} dB",
+                file=sys.stderr,
+            )
+    return 0
+
+
+def print_summary(med: dict[str, float], cpu_med: dict[str, float]) -> None:
+    """The stderr summary against the one reference (`ref`, `ref_still`)."""
     print("\n# median: steps/s (wall ms/step)  ratio ours/ref | CPU ms/step  ratio ref/ours", file=sys.stderr)
     for k, v in med.items():
         base = _ref_of(k)
@@ -730,14 +845,24 @@ def main() -> int:
             f"#   {k:<18} {v:9.1f} ({1e3 / v:7.3f} ms) {ratio} | {cpu_med[k]:7.3f} ms {cpu_ratio}",
             file=sys.stderr,
         )
-    for impl, rows in quality.items():
-        for q in rows:
-            print(
-                f"#   PSNR {impl:<18} z={q['z_m']:6.1f} m  {q['footage_px_per_output_px']:5.2f} footage px/px  "
-                f"{q['psnr_db']:5.1f} dB",
-                file=sys.stderr,
-            )
-    return 0
+
+
+def print_multi_summary(result: dict[str, Any]) -> None:
+    """The stderr summary with --ref-python-also: the ratios against each reference, labelled by its version."""
+    med, cpu_med = result["median_steps_per_s"], result["median_cpu_ms_per_step"]
+    wall_vs, cpu_vs = result["ratio_vs"], result["cpu_ratio_vs"]
+    print(
+        "\n# median: steps/s (wall ms/step) | CPU ms/step | vs <viva-safeland version>: ratio ours/ref (wall), "
+        "ref/ours (CPU)",
+        file=sys.stderr,
+    )
+    for k, v in med.items():
+        vs = "".join(
+            f" | vs {label} {wall_vs[label][k]:6.2f}x wall {cpu_vs[label][k]:6.2f}x CPU"
+            for label in wall_vs
+            if k in wall_vs[label] and k in cpu_vs[label]
+        )
+        print(f"#   {k:<18} {v:9.1f} ({1e3 / v:7.3f} ms) | {cpu_med[k]:7.3f} ms{vs}", file=sys.stderr)
 
 
 if __name__ == "__main__":

@@ -13,7 +13,8 @@ different regions from the shared decode. The reference (`DroneEnv.step`, its ow
 same z, 640x480 view) runs in the same rounds, interleaved; the order of the variants rotates by one each round.
 Reported: median env steps/s, median wall and CPU ms per env step, ratios (per-env step cost vs a single env; steps/s
 vs the reference). Load average printed per round: on a shared machine wall figures are depressed, CPU ms per step
-is the steadier figure.
+is the steadier figure. `--ref-python-also PY ...`: further references (e.g. viva-safeland 0.2.5 beside 0.2.0), run
+`ref_<version>` in the same rounds; the table then gives steps/s and CPU (reference CPU ms / ours) vs each version.
 """
 
 from __future__ import annotations
@@ -94,6 +95,9 @@ def main() -> None:
     ap.add_argument("--rounds", type=int, default=3)
     ap.add_argument("--ref-python", default="/work/refvenv/bin/python")
     ap.add_argument("--no-ref", action="store_true")
+    ap.add_argument("--ref-python-also", nargs="*", default=[],
+                    help="further reference interpreters timed in the same rounds (e.g. viva-safeland 0.2.5's beside "
+                         "0.2.0's): runs ref_<version>, every ratio also vs each of them")  # fmt: skip
     ap.add_argument("--cache-dir", type=Path, default=core.DEFAULT_CACHE)
     ap.add_argument("--markdown", type=Path, default=None)
     ap.add_argument("--json", type=Path, default=None)
@@ -111,17 +115,24 @@ def main() -> None:
         footage = str(bench_tiles.make_tiles(clip, "jpeg"))
     else:
         footage = str(clip)
-    ref = None
-    why = "--no-ref" if args.no_ref else core.reference_available(args.ref_python)
-    if why is None:
-        ns = SimpleNamespace(z=args.z, yaw_deg=30.0, out_size=args.image_size, steps=args.steps,
-                             rel_alt=core.DEFAULT_REL_ALT_M)  # fmt: skip
-        ref = core.Reference(args.ref_python, clip, ns)  # type: ignore[arg-type]
-    else:
-        print(f"# reference skipped: {why}", file=sys.stderr)
-    runs: dict[str, list[tuple[float, float]]] = {"single": [], **{f"vec{n}": [] for n in args.ns}, "ref": []}
+    ns = SimpleNamespace(z=args.z, yaw_deg=30.0, out_size=args.image_size, steps=args.steps,
+                         rel_alt=core.DEFAULT_REL_ALT_M)  # fmt: skip
+    refs: dict[str, core.Reference] = {}  # run name ("ref", "ref_<version>") -> the reference
+    labels: dict[str, str] = {}  # "vs" label (the viva-safeland version the interpreter reports) -> run name
+    for i, python in enumerate([args.ref_python, *args.ref_python_also]):
+        why = "--no-ref" if args.no_ref else core.reference_available(python)
+        if why is not None:
+            print(f"# reference skipped: {why}" if i == 0 else f"# reference {python} skipped: {why}",
+                  file=sys.stderr)  # fmt: skip
+            continue
+        ref_run = core.Reference(python, clip, ns)  # type: ignore[arg-type]
+        label = core.reference_label(str(ref_run.info.get("version", "unknown")), labels)
+        labels[label] = "ref" if i == 0 else f"ref_{label}"
+        refs[labels[label]] = ref_run
+    runs: dict[str, list[tuple[float, float]]] = {"single": [], **{f"vec{n}": [] for n in args.ns}, "ref": [],
+                                                  **{k: [] for k in refs if k != "ref"}}  # fmt: skip
     loads = []
-    order = [k for k in runs if k != "ref" or ref is not None]
+    order = [k for k in runs if not k.startswith("ref") or k in refs]
     try:
         # warm-up (imports, world build, first decode) untimed
         time_single(footage, replace_steps(args, 5))
@@ -130,9 +141,9 @@ def main() -> None:
             # the variants' order rotates from round to round: none is always the one timed right after the
             # reference's process or first after a warm-up (on this VM the variant after the reference ran slower)
             for k in order[r % len(order) :] + order[: r % len(order)]:
-                if k == "ref" and ref is not None:
-                    sps, cpu_ms = ref.run()
-                    runs["ref"].append((1e3 / sps, cpu_ms))
+                if k in refs:
+                    sps, cpu_ms = refs[k].run()
+                    runs[k].append((1e3 / sps, cpu_ms))
                 elif k == "single":
                     runs["single"].append(time_single(footage, args))
                 else:
@@ -143,7 +154,7 @@ def main() -> None:
         print("bench_gym.py: interrupted", file=sys.stderr)
         raise SystemExit(130) from None
     finally:
-        if ref is not None:
+        for ref in refs.values():
             ref.close()
     med = {
         k: (statistics.median(w for w, _ in v), statistics.median(c for _, c in v))
@@ -151,29 +162,43 @@ def main() -> None:
         if v
     }
     single_w, single_c = med["single"]
-    rows = []
+    rows: list[dict[str, Any]] = []
     for k, (w, c) in med.items():
         rows.append({
             "variant": k, "env_steps_per_s": 1e3 / w, "wall_ms_per_env_step": w, "cpu_ms_per_env_step": c,
             "cost_vs_single_wall": w / single_w, "cost_vs_single_cpu": c / single_c,
             "x_ref_steps_per_s": (med["ref"][0] / w) if "ref" in med else None,
         })  # fmt: skip
+        # --ref-python-also: steps/s (wall) and CPU (reference CPU ms / ours) vs each reference, by its version
+        if args.ref_python_also:
+            rows[-1]["x_steps_per_s_vs"] = {lb: med[rk][0] / w for lb, rk in labels.items() if rk in med}
+            rows[-1]["x_cpu_vs"] = {lb: med[rk][1] / c for lb, rk in labels.items() if rk in med}
     cv = "" if args.cv_threads is None else f", cv2 threads {args.cv_threads}"
     head = (f"footage: {args.footage} ({footage}), view {args.image_size}, z {args.z} m{cv}, {args.steps} steps per run, "
             f"{args.rounds} rounds, machine: {os.cpu_count()} cores, load per round: {'; '.join(loads)}")  # fmt: skip
     lines = [head, "", "| variant | env steps/s | wall ms / env step | CPU ms / env step | cost vs single (wall) "
              "| cost vs single (CPU) | steps/s vs ref |", "|---|---:|---:|---:|---:|---:|---:|"]  # fmt: skip
+    if args.ref_python_also:
+        head += "; references: " + ", ".join(f"viva-safeland {lb} ({rk})" for lb, rk in labels.items())
+        lines = [head, "", "| variant | env steps/s | wall ms / env step | CPU ms / env step | cost vs single (wall) "
+                 "| cost vs single (CPU) | " + " | ".join(f"steps/s vs {lb} | CPU vs {lb}" for lb in labels) + " |",
+                 "|---|---:|---:|---:|---:|---:|" + "---:|---:|" * len(labels)]  # fmt: skip
     for row in rows:
         x = row["x_ref_steps_per_s"]
+        last = f"{'' if x is None else f'{x:.2f}x'} |"
+        if args.ref_python_also:
+            last = " | ".join(f"{row['x_steps_per_s_vs'][lb]:.2f}x | {row['x_cpu_vs'][lb]:.2f}x"
+                              if lb in row["x_steps_per_s_vs"] else " | " for lb in labels) + " |"  # fmt: skip
         lines.append(f"| {row['variant']} | {row['env_steps_per_s']:.1f} | {row['wall_ms_per_env_step']:.2f} | "
                      f"{row['cpu_ms_per_env_step']:.2f} | {row['cost_vs_single_wall']:.3f} | "
-                     f"{row['cost_vs_single_cpu']:.3f} | {'' if x is None else f'{x:.2f}x'} |")  # fmt: skip
+                     f"{row['cost_vs_single_cpu']:.3f} | {last}")  # fmt: skip
     text = "\n".join(lines)
     print(text)
     if args.markdown:
         args.markdown.write_text(text + "\n")
     if args.json:
-        args.json.write_text(json.dumps({"head": head, "rows": rows, "runs": runs}, indent=1))
+        more = {"references": labels} if args.ref_python_also else {}  # "vs" label -> run name
+        args.json.write_text(json.dumps({"head": head, "rows": rows, "runs": runs, **more}, indent=1))
 
 
 def replace_steps(args: argparse.Namespace, steps: int) -> argparse.Namespace:

@@ -5,8 +5,10 @@ Runs under the reference's own interpreter (Python >= 3.12), e.g.:
     /work/venv312/bin/python bench/reference/run_reference.py --video /tmp/viva-sitl-bench/interchange_4k.mp4
 
 One "step" is `env.step(actions)`: read the next footage frame (cv2.VideoCapture, one frame per step),
-copy it, one Verlet step of the paper's model at dt = 1/render_fps, warpPerspective of the full 4K frame to the
-drone view. `--with-render` also calls `env.render()` (the 1280x720 composite of the rgb_array mode).
+copy it (0.2.0; 0.2.5 no longer copies), one Verlet step of the paper's model at dt = 1/render_fps, warpPerspective
+of the full 4K frame to the drone view. `--with-render` also calls `env.render()` (the 1280x720 composite of the
+rgb_array mode). 0.2.5 runs with its DroneEnv defaults (hover_z, hover_xy, perspective camera); everything here
+drives both versions the same, except `quality`'s camera call (0.2.5: get_drone_view(frame, state, roll, pitch, yaw)).
 
 Output: one JSON object on stdout. With `--serve`, the script reads commands from stdin instead, one per line
 ("run" -> time one run and print one JSON line; "quit"), so a driver can interleave it with another
