@@ -692,3 +692,26 @@ def test_a_trial_flies_the_same_over_a_lossless_tile_cache_of_its_footage(
     assert rows[0]["end"] == "landed", rows[0]
     assert rows[0] == rows[1]
     assert len(videos[0]) > 10_000 and videos[0] == videos[1]  # the VAC frames the pilot saw: identical
+
+
+@pytest.mark.slow
+def test_trials_run_says_when_an_external_pilots_wall_timers_may_trip_failsafes(tmp_path: Path) -> None:
+    """Above 8x an external pilot's own wall-clock timers (MAVSDK's 1 Hz heartbeat, 20 Hz offboard re-send) can
+    trip PX4's link-loss / offboard-loss failsafes (measured: bench/results_trials.md §7): `trials run` says so in
+    one line before flying, and says nothing at 8x or for in-process pilots (whose clock has no wall timers)."""
+    from viva_sitl.evaluation.cli import fast_external_note
+
+    external = "{python} -c pass"
+    assert fast_external_note(external, 8.0) is None
+    assert fast_external_note("descend", 32.0) is None
+    note = fast_external_note(external, 16.0)
+    assert note is not None and "16x" in note and "COM_DL_LOSS_T" in note
+    # the real command: an external pilot that exits at once, one trial at --speed 16
+    proc = subprocess.run(
+        [sys.executable, "-m", "viva_sitl", "trials", "run", str(SPEC_DIR / "synthetic_emergency.toml"),
+         "--pilot", external, "--n", "1", "--speed", "16", "--no-progress", "-o", str(tmp_path / "out")],
+        capture_output=True, text=True, timeout=120, cwd=REPO,
+    )  # fmt: skip
+    lines = [ln for ln in proc.stderr.splitlines() if "wall-clock timers" in ln]
+    assert lines == [f"viva-sitl trials: {note}"], proc.stderr
+    assert (tmp_path / "out" / "results.csv").is_file()  # it still flies: a note, not a refusal

@@ -280,6 +280,26 @@ def check_external_pilot(pilot: str) -> None:
         )
 
 
+# the highest --speed at which an external pilot's own wall-clock timers are known not to trip PX4's failsafes:
+# mission_scripts/mavsdk_precision_land.py lands at 8x in lockstep and ends pilot_error ("Data link regained ...
+# Failsafe activated") in 5 of 24 trials at 16x and 32x (bench/results_trials.md §7): MAVSDK heartbeats once per
+# wall second against COM_DL_LOSS_T = 10 sim s
+WALL_TIMER_SAFE_SPEED = 8.0
+
+
+def fast_external_note(pilot: str, speed: float) -> str | None:
+    """The line `trials run` prints when an external pilot flies faster than WALL_TIMER_SAFE_SPEED (None: none)."""
+    from viva_sitl.evaluation.pilots import is_inprocess
+
+    if is_inprocess(pilot) or speed <= WALL_TIMER_SAFE_SPEED:
+        return None
+    return (
+        f"note: --speed {speed:g} with an external pilot: its own wall-clock timers see {speed:g}x time; MAVSDK "
+        f"pilots (1 Hz heartbeat vs COM_DL_LOSS_T = 10 s, 20 Hz offboard re-send vs COM_OF_LOSS_T = 1 s) can trip "
+        f'PX4\'s failsafes above {WALL_TIMER_SAFE_SPEED:g}x (README "Timing")'
+    )
+
+
 def _run(args: argparse.Namespace) -> int:
     from viva_sitl.evaluation.campaign import finished_trials, run_campaign
     from viva_sitl.evaluation.spec import load_spec
@@ -302,6 +322,9 @@ def _run(args: argparse.Namespace) -> int:
         spec = dataclasses.replace(spec, ulog=False)
     pilot = args.pilot or spec.pilot
     check_external_pilot(pilot)
+    note = fast_external_note(pilot, spec.speed)
+    if note is not None:
+        print(f"viva-sitl trials: {note}", file=sys.stderr)
     if args.address is not None and args.backend != "ray":
         raise ValueError("--address is a Ray cluster's: give --backend ray too")
     safe = "".join(ch if ch.isalnum() or ch in "-_" else "_" for ch in pilot.split("/")[-1])[:40]
