@@ -489,16 +489,23 @@ def check_dynamics(golden_path: Path) -> int:
 # ---------------------------------------------------------------------------------------------- report
 
 
+def _markdown_head(result: dict[str, Any]) -> str:
+    """The run's conditions, the first line of both markdown forms."""
+    return (
+        f"z = {result['z_m']} m, z_o = {result['rel_alt_m']} m, VAC {result['out_size']}, "
+        f"{result['steps_per_run']} steps/run, {result['rounds']} interleaved rounds, "
+        f"loadavg (1/5/15 min) at start {tuple(round(v, 2) for v in result['machine'].get('loadavg_start', ()))}, "
+        f"at end {tuple(round(v, 2) for v in result['machine']['loadavg'])}"
+    )
+
+
 def to_markdown(result: dict[str, Any]) -> str:
     """The result as markdown tables (for bench/results_core.md)."""
     med, cpu = result["median_steps_per_s"], result["median_cpu_ms_per_step"]
     if "ratio_vs" in result:  # --ref-python-also: the ratios against each reference, by its version
         return _markdown_multi(result)
     lines = [
-        f"z = {result['z_m']} m, z_o = {result['rel_alt_m']} m, VAC {result['out_size']}, "
-        f"{result['steps_per_run']} steps/run, {result['rounds']} interleaved rounds, "
-        f"loadavg (1/5/15 min) at start {tuple(round(v, 2) for v in result['machine'].get('loadavg_start', ()))}, "
-        f"at end {tuple(round(v, 2) for v in result['machine']['loadavg'])}",
+        _markdown_head(result),
         "",
         "| run | median steps/s | wall ms/step | ratio ours/ref (wall) | CPU ms/step | ratio ref/ours (CPU) | vs "
         "| sim s per wall s | physics steps/s |",
@@ -528,10 +535,7 @@ def _markdown_multi(result: dict[str, Any]) -> str:
     labels = list(wall_vs)
     video_runs = {v[0] for v in runs.values() if v}
     lines = [
-        f"z = {result['z_m']} m, z_o = {result['rel_alt_m']} m, VAC {result['out_size']}, "
-        f"{result['steps_per_run']} steps/run, {result['rounds']} interleaved rounds, "
-        f"loadavg (1/5/15 min) at start {tuple(round(v, 2) for v in result['machine'].get('loadavg_start', ()))}, "
-        f"at end {tuple(round(v, 2) for v in result['machine']['loadavg'])}",
+        _markdown_head(result),
         "",
         "References, same rounds: "
         + "; ".join(f"viva-safeland {label}: {', '.join(keys)}" for label, keys in runs.items())
