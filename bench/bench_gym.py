@@ -103,7 +103,9 @@ def main() -> None:
     ap.add_argument("--json", type=Path, default=None)
     ap.add_argument("--cv-threads", type=int, default=None,
                     help="cv2.setNumThreads for this process (default: OpenCV's own); the reference is unchanged")  # fmt: skip
+    core.add_tile_cache_arg(ap)  # the clip by path opens through the automatic tile cache: see its help
     args = ap.parse_args()
+    core.apply_tile_cache(ap, args)
     if args.cv_threads is not None:
         import cv2
 
