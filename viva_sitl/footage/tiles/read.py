@@ -102,9 +102,11 @@ class TileCache:
         self._lock = threading.Lock()
         self.tiles_decoded = 0  # statistics
         self.tile_hits = 0
-        # cv2.imdecode releases the GIL: misses of one region are decoded in parallel
+        # the decoders release the GIL: misses of one region are decoded in parallel, by the caller's thread and
+        # threads - 1 workers, each a contiguous share of them (one hand-off per worker and region, not per tile)
+        self._threads = threads
         self._pool = (
-            ThreadPoolExecutor(threads, thread_name_prefix="viva-sitl-tile-decode")
+            ThreadPoolExecutor(threads - 1, thread_name_prefix="viva-sitl-tile-decode")
             if threads > 1 and self.codec != "raw"
             else None
         )
@@ -254,14 +256,20 @@ class TileCache:
         todo = self.tiles_under(level, x0, y0, x1, y1, quad, margin_px)
         got = [self._read(frame, level, tx, ty) for tx, ty in todo]
         misses = [i for i, g in enumerate(got) if not isinstance(g, np.ndarray)]
+
+        def decode(share: list[int]) -> None:
+            for i in share:
+                got[i] = self._decoded(frame, level, *todo[i], got[i], bgra)  # type: ignore[arg-type]
+
         if len(misses) > 1 and self._pool is not None:
-            decoded = list(
-                self._pool.map(lambda i: self._decoded(frame, level, *todo[i], got[i], bgra), misses)  # type: ignore[arg-type]
-            )
+            n = min(self._threads, len(misses))
+            shares = [misses[len(misses) * k // n : len(misses) * (k + 1) // n] for k in range(n)]
+            futures = [self._pool.submit(decode, share) for share in shares[1:]]
+            decode(shares[0])
+            for fut in futures:
+                fut.result()
         else:
-            decoded = [self._decoded(frame, level, *todo[i], got[i], bgra) for i in misses]  # type: ignore[arg-type]
-        for i, img in zip(misses, decoded, strict=True):
-            got[i] = img
+            decode(misses)
         for (tx, ty), tile in zip(todo, got, strict=True):
             assert isinstance(tile, np.ndarray)
             ax0, ay0 = tx * ts, ty * ts
