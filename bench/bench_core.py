@@ -56,6 +56,10 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
+# first, as a user's program that imports it before cv2: its OpenCV settings (viva_sitl.opencv_pool) apply here
+from viva_sitl import opencv_pool
+
+# isort: split
 import av
 import cv2
 import numpy as np
@@ -229,7 +233,15 @@ class Reference:
         ]  # fmt: skip
         if fixed:
             cmd.append("--fixed")
-        self.proc = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, bufsize=1)
+        # the reference as its users run it: OpenCV's defaults, not what viva_sitl set for this process
+        self.proc = subprocess.Popen(
+            cmd,
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            text=True,
+            bufsize=1,
+            env=opencv_pool.user_environ(),
+        )
         self.info = self._read()
         if not self.info.get("ready"):
             raise RuntimeError(f"reference did not start: {self.info}")

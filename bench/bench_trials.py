@@ -55,9 +55,11 @@ REPO = Path(__file__).resolve().parents[1]
 if str(REPO) not in sys.path:  # the pilot class below is imported by name in the pool's workers
     sys.path.insert(0, str(REPO))
 
+import viva_sitl  # noqa: E402, F401, I001 - before cv2, as the `viva-sitl` commands (viva_sitl.opencv_pool)
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
+from viva_sitl import opencv_pool  # noqa: E402
 from viva_sitl.dynamics import EavCommand  # noqa: E402
 
 TRIAL_S = 60.0
@@ -193,7 +195,7 @@ def ref(ref_python: str, clip: Path, n: int, jobs: int, read: str = "cv2") -> di
     per = [n // jobs + (1 if k < n % jobs else 0) for k in range(jobs)]
     t0 = time.perf_counter()
     procs = [subprocess.Popen([ref_python, "-c", REF_LOOP, str(clip), str(m), str(TRIAL_S), str(k), read],
-                              stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+                              stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True, env=opencv_pool.user_environ())
              for k, m in enumerate(per) if m > 0]  # fmt: skip
     outs = [json.loads(p.communicate()[0].strip().splitlines()[-1]) for p in procs]
     wall = time.perf_counter() - t0

@@ -17,6 +17,7 @@ from typing import Any
 
 import pytest
 
+from viva_sitl import opencv_pool
 from viva_sitl.dashboard.replay import load_recording
 from viva_sitl.evaluation.campaign import run_campaign
 from viva_sitl.evaluation.spec import spec_from_dict
@@ -36,6 +37,7 @@ if scenario["index"] == 0:
 if scenario["index"] == 1:
     time.sleep(3600)
 if scenario["index"] == 2:
+    print("opencv pool env:", sorted(k for k in os.environ if k.startswith("OPENCV_THREAD_POOL")), flush=True)
     for stream in (sys.stdout.buffer, sys.stderr.buffer):
         stream.write(b"\xff\xfe\x80 not utf-8\n" * 5000)
         stream.flush()
@@ -123,6 +125,10 @@ def test_crashing_hanging_and_landing_external_pilots(tmp_path: Path) -> None:
     assert r2["end"] == "landed" and r2["time_to_land_s"] > 0, r2
     log2 = (tmp_path / "out" / "trials" / "0002" / "pilot.log").read_bytes()
     assert b"told to land" in log2 and log2.count(b"\xff\xfe\x80 not utf-8\n") == 10000  # kept as printed
+    # the OpenCV settings viva_sitl made for itself (this process has them) are not the user's program's
+    assert os.environ.get("OPENCV_THREAD_POOL_ACTIVE_WAIT_MAIN") is not None
+    mine = sorted(k for k in opencv_pool.user_environ() if k.startswith("OPENCV_THREAD_POOL"))
+    assert f"opencv pool env: {mine}".encode() in log2
     assert _leftovers(str(tmp_path)) == []
     # a pilot script that is not there: pilot_error at once, with what Python said
     camp = run_campaign(spec, f"{{python}} {tmp_path / 'no_such_pilot.py'}", tmp_path / "missing", n=1, jobs=1,
