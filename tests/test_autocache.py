@@ -372,3 +372,26 @@ def test_trials_search_hands_the_cache_flags_to_its_pool_workers(
             assert not (tmp_path / "xdg").exists()
         assert autocache.policy() == mine
     assert not (tmp_path / "mine").exists()
+
+
+def test_a_cache_of_another_zstd_level_is_not_reused(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The zstd level is part of the key: a cache built at level 3 (before level -1 decoded faster) is rebuilt,
+    not kept (as a change of the levels stored as zstd); both decode to the same pixels (zstd is lossless)."""
+    from viva_sitl.footage.tiles import format as tile_format
+
+    clip = _clip(tmp_path, "zlevel")
+    policy = _policy(tmp_path / "cache")
+    now = autocache.content_key(clip, policy)
+    monkeypatch.setattr(tile_format, "YUVZ_LEVEL", 3)
+    old = autocache.content_key(clip, policy)
+    assert old != now
+    with open_footage(str(clip.with_suffix(".toml")), cache=policy) as level3:
+        assert isinstance(level3, TileSource)
+        pixels3 = level3.frame(1)
+        bytes3 = level3.cache.disk_bytes
+    monkeypatch.undo()
+    with open_footage(str(clip.with_suffix(".toml")), cache=policy) as fast:
+        assert isinstance(fast, TileSource) and fast.cache.folder.name == now  # built anew beside the other
+        assert np.array_equal(fast.frame(1), pixels3)
+        assert fast.cache.disk_bytes != bytes3
+    assert {e.folder.name for e in autocache.list_caches(policy.directory())} == {old, now}

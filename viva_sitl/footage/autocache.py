@@ -122,11 +122,17 @@ def policy_cli_args(p: CachePolicy | None = None) -> list[str]:
 
 
 def _codec_layout(codec: str) -> str:
-    """What else than the codec's name decides its bytes: the yuv420z levels stored as zstd (caches built when it
-    was level 0 alone get a new key, so that a cache is rebuilt with the faster layout, not kept)."""
-    if codec != "yuv420z" or tile_format.YUVZ_MAX_LEVEL == 0:
+    """What else than the codec's name decides its bytes: the yuv420z levels stored as zstd and the zstd level
+    (caches built when it was level 0 alone, or at zstd level 3, get a new key, so that a cache is rebuilt with the
+    faster layout, not kept)."""
+    if codec != "yuv420z":
         return ""
-    return f" zstd<={tile_format.YUVZ_MAX_LEVEL}@{tile_format.YUVZ_COARSE_MIN_PSNR_DB:g}dB"
+    layout = ""
+    if tile_format.YUVZ_MAX_LEVEL != 0:
+        layout = f" zstd<={tile_format.YUVZ_MAX_LEVEL}@{tile_format.YUVZ_COARSE_MIN_PSNR_DB:g}dB"
+    if tile_format.YUVZ_LEVEL != 3:
+        layout += f" zstd-level {tile_format.YUVZ_LEVEL}"
+    return layout
 
 
 def content_key(path: Path, policy: CachePolicy) -> str:

@@ -39,7 +39,10 @@ INDEX_DTYPE_V1 = np.dtype(
 _MASK64 = (1 << 64) - 1
 _RAW_MAGIC = b"RAWT"
 _YUVZ_MAGIC = b"Y4Z1"
-YUVZ_LEVEL = 3  # zstd level of the yuv420z codec's zstd tiles (decode speed does not depend on it)
+# zstd level of the yuv420z codec's zstd tiles: -1, zstd's first fast mode (literals not Huffman-coded), decodes a
+# 256 px tile in ~49 us where levels 1-3 take ~69-72 us, for ~9 % more bytes (4K bench clip: 9.37 MiB per frame vs
+# 8.60 at level 3; bench/results_tiles.md, session 16); readers decode any level
+YUVZ_LEVEL = -1
 # the yuv420z codec's levels stored as zstd YUV 4:2:0 (the rest as jpeg 4:4:4): levels 0 and 1, the levels a view
 # reads up to ~4 footage px per VAC px (~300 m over the 4K bench clip), decoded ~3.3x faster than jpeg. A level >= 1
 # tile has the chroma resolution 4:2:0 halves again: it is stored so only where its round trip keeps
