@@ -51,8 +51,8 @@ def _parse(
 @dataclass(frozen=True)
 class TileSettings:
     """Settings of a tile cache reader: `cache_bytes` caps the LRU of decoded tiles, `decode_threads` decode one
-    region's missing tiles (1: in the caller's thread; None: not chosen, DEFAULT_DECODE_THREADS, or the cores a
-    trial worker is left: `or_threads`)."""
+    region's missing tiles (the caller's thread and decode_threads - 1 workers; 1: the caller's alone; None: not
+    chosen, DEFAULT_DECODE_THREADS, or the cores a trial worker is left: `or_threads`)."""
 
     cache_bytes: int = DEFAULT_CACHE_BYTES
     decode_threads: int | None = None
