@@ -47,7 +47,7 @@ def child(args: argparse.Namespace) -> None:
     autocache.set_policy(autocache.CachePolicy(root=args.cache_dir / "tiles-auto", show_progress=False))
     core.apply_tile_environment()
     ns = argparse.Namespace(
-        out_size="640x480", rel_alt=core.DEFAULT_REL_ALT_M, z=args.z, yaw_deg=30.0, steps=args.steps
+        out_size="640x480", rel_alt=core.DEFAULT_REL_ALT_M, z=args.z[0], yaw_deg=30.0, steps=args.steps
     )
     ours = core.Ours(clip, ns, paper=False, render=True)
     try:
@@ -88,7 +88,12 @@ def main() -> int:
                 cmd = [sys.executable, __file__, "--child", cfg, "--z", f"{z:g}", "--rounds", str(args.rounds),
                        "--steps", str(args.steps), "--frames", str(args.frames), "--cache-dir", str(args.cache_dir)]  # fmt: skip
                 t0 = time.perf_counter()
-                out = subprocess.run(cmd, env=env, capture_output=True, text=True, check=True)
+                out = subprocess.run(cmd, env=env, capture_output=True, text=True)
+                if out.returncode != 0:
+                    print(out.stderr, file=sys.stderr)
+                    raise SystemExit(
+                        f"bench_cv_pool: the {cfg} child at {z:g} m failed (exit {out.returncode})"
+                    )
                 res = json.loads(out.stdout.strip().splitlines()[-1])
                 row = {"z": z, "config": cfg, "decode_threads": threads, **res,
                        "load": os.getloadavg()[0], "wall_s": time.perf_counter() - t0}  # fmt: skip
