@@ -8,10 +8,13 @@ Configurations (`--configs`):
 each with 1 and 2 tile decode threads (`--decode-threads`). Steps as bench_tiles.py's (bench_core.Ours: 1/30 s of
 physics + one 640x480 render per step, hovering at --z), the clip by path under the automatic cache, the decoded-tile
 LRU at `--tile-cache-mb` (default 2 MiB: every frame decoded, as over a long clip). Prints one line per
-configuration and a markdown table; `--json` keeps the figures. No reference here: bench_tiles.py times the same step
-against viva-safeland in the same rounds.
+configuration and a markdown table; `--json` keeps the figures. `--ref-python PY ...`: viva-safeland interpreters
+timed in the same run (bench_core.Reference, its own process, one round before each configuration's process and one
+after the last), each configuration's wall and CPU ratio to each. Unlike bench_tiles.py, which runs its four variants
+in one process, each configuration here runs alone in its process, as a user's program does.
 
     python bench/bench_cv_pool.py --z 50 300 --rounds 5
+    python bench/bench_cv_pool.py --configs sleep --ref-python /tmp/ref020/bin/python /tmp/ref025/bin/python
 """
 
 from __future__ import annotations
@@ -71,6 +74,9 @@ def main() -> int:
     ap.add_argument("--tile-cache-mb", type=float, default=2.0)
     ap.add_argument("--cache-dir", type=Path, default=Path("/tmp/viva-sitl-bench"))
     ap.add_argument("--json", type=Path)
+    ap.add_argument("--ref-python", nargs="*", default=[],
+                    help="viva-safeland interpreters to time in the same run: one round of each before every "
+                         "configuration's process and after the last, at the same z (bench_core.Reference)")  # fmt: skip
     ap.add_argument("--child", choices=CONFIGS, help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.child:
@@ -80,33 +86,98 @@ def main() -> int:
 
     base = opencv_pool.user_environ()  # a fresh shell's environment (no OPENCV_* set by this process)
     rows: list[dict[str, Any]] = []
+    refs_out: list[dict[str, Any]] = []
     for z in args.z:
-        for cfg in args.configs:
-            for threads in args.decode_threads:
-                env = dict(base, VIVA_SITL_TILE_CACHE_MB=f"{args.tile_cache_mb:g}",
-                           VIVA_SITL_TILE_DECODE_THREADS=str(threads), **(SPIN if cfg == "spin" else {}))  # fmt: skip
-                cmd = [sys.executable, __file__, "--child", cfg, "--z", f"{z:g}", "--rounds", str(args.rounds),
-                       "--steps", str(args.steps), "--frames", str(args.frames), "--cache-dir", str(args.cache_dir)]  # fmt: skip
-                t0 = time.perf_counter()
-                out = subprocess.run(cmd, env=env, capture_output=True, text=True)
-                if out.returncode != 0:
-                    print(out.stderr, file=sys.stderr)
-                    raise SystemExit(
-                        f"bench_cv_pool: the {cfg} child at {z:g} m failed (exit {out.returncode})"
-                    )
-                res = json.loads(out.stdout.strip().splitlines()[-1])
-                row = {"z": z, "config": cfg, "decode_threads": threads, **res,
-                       "load": os.getloadavg()[0], "wall_s": time.perf_counter() - t0}  # fmt: skip
-                rows.append(row)
-                print(f"z {z:g} m  {cfg:5s} decode {threads}: {res['steps_per_s']:7.1f} steps/s  "
-                      f"{res['cpu_ms_per_step']:.2f} ms CPU/step  (load {row['load']:.2f})", file=sys.stderr)  # fmt: skip
-    print("| z | OpenCV pool | decode threads | steps/s | CPU ms/step |\n|---|---|---:|---:|---:|")
-    for r in rows:
-        print(f"| {r['z']:g} m | {r['config']} | {r['decode_threads']} | {r['steps_per_s']:.1f} | "
-              f"{r['cpu_ms_per_step']:.2f} |")  # fmt: skip
+        refs = _references(args, z)
+        ref_runs: dict[str, list[tuple[float, float]]] = {name: [] for name in refs}
+        try:
+            for cfg in args.configs:
+                for threads in args.decode_threads:
+                    _time_refs(refs, ref_runs)
+                    rows.append(_config(args, base, z, cfg, threads))
+            _time_refs(refs, ref_runs)
+        finally:
+            for ref in refs.values():
+                ref.close()
+        for name, runs in ref_runs.items():
+            ref_row = {"z": z, "reference": name, "steps_per_s": statistics.median(r[0] for r in runs),
+                       "cpu_ms_per_step": statistics.median(r[1] for r in runs), "runs": runs}  # fmt: skip
+            refs_out.append(ref_row)
+            print(f"z {z:g} m  {name}: {ref_row['steps_per_s']:7.1f} steps/s  {ref_row['cpu_ms_per_step']:.2f} ms "
+                  f"CPU/step (median of {len(runs)} rounds)", file=sys.stderr)  # fmt: skip
+    _table(rows, refs_out)
     if args.json:
-        args.json.write_text(json.dumps(rows, indent=1))
+        args.json.write_text(json.dumps({"configs": rows, "references": refs_out}, indent=1))
     return 0
+
+
+def _time_refs(refs: dict[str, Any], runs: dict[str, list[tuple[float, float]]]) -> None:
+    """One round of each reference (steps/s, CPU ms per step)."""
+    for name, ref in refs.items():
+        runs[name].append(ref.run())
+
+
+def _references(args: argparse.Namespace, z: float) -> dict[str, Any]:
+    """The viva-safeland references of --ref-python at z, ready to run (labelled by the version each reports)."""
+    if not args.ref_python:
+        return {}
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    import bench_core as core
+    from bench_tiles import _ref_version
+
+    clip = core.make_clip(args.cache_dir, args.frames)
+    ns = argparse.Namespace(
+        out_size="640x480", rel_alt=core.DEFAULT_REL_ALT_M, z=z, yaw_deg=30.0, steps=args.steps
+    )
+    out: dict[str, Any] = {}
+    for py in args.ref_python:
+        why = core.reference_available(py)
+        if why is not None:
+            raise SystemExit(f"bench_cv_pool: reference {py}: {why}")
+        out[f"viva-safeland {_ref_version(py)}"] = core.Reference(py, clip, ns)
+    return out
+
+
+def _config(
+    args: argparse.Namespace, base: dict[str, str], z: float, cfg: str, threads: int
+) -> dict[str, Any]:
+    """One configuration's child process at z: its medians."""
+    env = dict(base, VIVA_SITL_TILE_CACHE_MB=f"{args.tile_cache_mb:g}",
+               VIVA_SITL_TILE_DECODE_THREADS=str(threads), **(SPIN if cfg == "spin" else {}))  # fmt: skip
+    cmd = [sys.executable, __file__, "--child", cfg, "--z", f"{z:g}", "--rounds", str(args.rounds),
+           "--steps", str(args.steps), "--frames", str(args.frames), "--cache-dir", str(args.cache_dir)]  # fmt: skip
+    t0 = time.perf_counter()
+    out = subprocess.run(cmd, env=env, capture_output=True, text=True)
+    if out.returncode != 0:
+        print(out.stderr, file=sys.stderr)
+        raise SystemExit(f"bench_cv_pool: the {cfg} child at {z:g} m failed (exit {out.returncode})")
+    res = json.loads(out.stdout.strip().splitlines()[-1])
+    row = {"z": z, "config": cfg, "decode_threads": threads, **res,
+           "load": os.getloadavg()[0], "wall_s": time.perf_counter() - t0}  # fmt: skip
+    print(f"z {z:g} m  {cfg:5s} decode {threads}: {res['steps_per_s']:7.1f} steps/s  "
+          f"{res['cpu_ms_per_step']:.2f} ms CPU/step  (load {row['load']:.2f})", file=sys.stderr)  # fmt: skip
+    return row
+
+
+def _table(rows: list[dict[str, Any]], refs: list[dict[str, Any]]) -> None:
+    """The markdown table: each configuration, and its wall / CPU ratio to each reference at its z."""
+    names = list(dict.fromkeys(r["reference"] for r in refs))
+    head = "| z | OpenCV pool | decode threads | steps/s | CPU ms/step |"
+    head += "".join(f" vs {n} wall / CPU |" for n in names)
+    print(head + "\n|---|---|---:|---:|---:|" + "---|" * len(names))
+    for r in rows:
+        line = (f"| {r['z']:g} m | {r['config']} | {r['decode_threads']} | {r['steps_per_s']:.1f} | "
+                f"{r['cpu_ms_per_step']:.2f} |")  # fmt: skip
+        for n in names:
+            ref = next(x for x in refs if x["reference"] == n and x["z"] == r["z"])
+            line += (f" {r['steps_per_s'] / ref['steps_per_s']:.2f}x / "
+                     f"{ref['cpu_ms_per_step'] / r['cpu_ms_per_step']:.2f}x |")  # fmt: skip
+        print(line)
+    for ref in refs:
+        print(
+            f"| {ref['z']:g} m | {ref['reference']} | | {ref['steps_per_s']:.1f} | {ref['cpu_ms_per_step']:.2f} |"
+            + " |" * len(names)
+        )
 
 
 if __name__ == "__main__":
