@@ -22,7 +22,7 @@ from __future__ import annotations
 import os
 from collections.abc import Mapping, MutableMapping
 
-# OpenCV's names and defaults (microseconds / iterations of busy waiting): PAUSE_LIMIT 16, WORKER 2000, MAIN 10000
+# OpenCV's names; its defaults are PAUSE_LIMIT 16, WORKER 2000, MAIN 10000 (how long each busy-waits)
 ACTIVE_WAIT_OFF = {
     "OPENCV_THREAD_POOL_ACTIVE_WAIT_PAUSE_LIMIT": "0",
     "OPENCV_THREAD_POOL_ACTIVE_WAIT_WORKER": "0",
