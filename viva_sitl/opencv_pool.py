@@ -22,7 +22,8 @@ from __future__ import annotations
 import os
 from collections.abc import Mapping, MutableMapping
 
-# OpenCV's names; its defaults are PAUSE_LIMIT 16, WORKER 2000, MAIN 10000 (how long each busy-waits)
+# OpenCV's names; its defaults (busy-wait iterations, static variables read when libopencv_core is loaded) are
+# PAUSE_LIMIT 16, WORKER 2000, MAIN 10000 (modules/core/src/parallel_impl.cpp)
 ACTIVE_WAIT_OFF = {
     "OPENCV_THREAD_POOL_ACTIVE_WAIT_PAUSE_LIMIT": "0",
     "OPENCV_THREAD_POOL_ACTIVE_WAIT_WORKER": "0",
