@@ -37,7 +37,8 @@ if scenario["index"] == 0:
 if scenario["index"] == 1:
     time.sleep(3600)
 if scenario["index"] == 2:
-    print("opencv pool env:", sorted(k for k in os.environ if k.startswith("OPENCV_THREAD_POOL")), flush=True)
+    print("opencv pool env:", sorted(k for k in os.environ if k.startswith(("OPENCV_THREAD_POOL", "VIVA_SITL_OPENCV"))),
+          flush=True)
     for stream in (sys.stdout.buffer, sys.stderr.buffer):
         stream.write(b"\xff\xfe\x80 not utf-8\n" * 5000)
         stream.flush()
@@ -127,7 +128,9 @@ def test_crashing_hanging_and_landing_external_pilots(tmp_path: Path) -> None:
     assert b"told to land" in log2 and log2.count(b"\xff\xfe\x80 not utf-8\n") == 10000  # kept as printed
     # the OpenCV settings viva_sitl made for itself (this process has them) are not the user's program's
     assert os.environ.get("OPENCV_THREAD_POOL_ACTIVE_WAIT_MAIN") is not None
-    mine = sorted(k for k in opencv_pool.user_environ() if k.startswith("OPENCV_THREAD_POOL"))
+    mine = sorted(
+        k for k in opencv_pool.user_environ() if k.startswith(("OPENCV_THREAD_POOL", "VIVA_SITL_OPENCV"))
+    )
     assert f"opencv pool env: {mine}".encode() in log2
     assert _leftovers(str(tmp_path)) == []
     # a pilot script that is not there: pilot_error at once, with what Python said

@@ -31,25 +31,37 @@ ACTIVE_WAIT_OFF = {
 }
 
 # the names of the variables viva_sitl set (not the user), kept in the environment so that the processes that inherit
-# it (trial and Ray workers) still know which ones to leave out of a user's program's environment
+# it (trial and Ray workers) still know which ones to leave out of a user's program's environment. A listed variable
+# whose value is no longer viva_sitl's was set again by the user (a shell prefix, os.environ in a notebook): it is
+# the user's from then on.
 SET_BY_VIVA_SITL = "VIVA_SITL_OPENCV_POOL_SET"
 
 
+def _ours(env: Mapping[str, str]) -> set[str]:
+    """The variables of SET_BY_VIVA_SITL's list that still hold the value viva_sitl gave them."""
+    listed = {n for n in env.get(SET_BY_VIVA_SITL, "").split(",") if n}
+    return {n for n in listed if n in ACTIVE_WAIT_OFF and env.get(n) == ACTIVE_WAIT_OFF[n]}
+
+
 def configure(environ: MutableMapping[str, str] | None = None) -> dict[str, str]:
-    """Set the variables of ACTIVE_WAIT_OFF the environment does not have (default: this process's) and list them in
-    SET_BY_VIVA_SITL. Returns the variables it set."""
+    """Set the variables of ACTIVE_WAIT_OFF the environment does not have (default: this process's) and list, in
+    SET_BY_VIVA_SITL, those that hold the value viva_sitl gave them. Returns the variables it set."""
     env = os.environ if environ is None else environ
     added = {k: v for k, v in ACTIVE_WAIT_OFF.items() if k not in env}
     env.update(added)
-    names = {n for n in env.get(SET_BY_VIVA_SITL, "").split(",") if n} | set(added)
+    names = _ours(env) | set(added)
     if names:
         env[SET_BY_VIVA_SITL] = ",".join(sorted(names))
+    elif SET_BY_VIVA_SITL in env:
+        del env[SET_BY_VIVA_SITL]
     return added
 
 
 def user_environ(environ: Mapping[str, str] | None = None) -> dict[str, str]:
-    """`environ` (default: this process's) without the variables viva_sitl set (SET_BY_VIVA_SITL, and that list):
-    the environment for a program the user gave (it gets OpenCV's defaults, or what the user set)."""
+    """`environ` (default: this process's) without SET_BY_VIVA_SITL and the variables it lists that still hold
+    viva_sitl's value: the environment for a program the user gave (it gets OpenCV's defaults, or what the user set;
+    a user who sets one of them to viva_sitl's own value, 0, after importing viva_sitl cannot be told apart and the
+    program gets OpenCV's default for it)."""
     env = os.environ if environ is None else environ
-    ours = set(env.get(SET_BY_VIVA_SITL, "").split(",")) | {SET_BY_VIVA_SITL}
+    ours = _ours(env) | {SET_BY_VIVA_SITL}
     return {k: v for k, v in env.items() if k not in ours}
