@@ -103,7 +103,7 @@ class TileCache:
         self.tiles_decoded = 0  # statistics
         self.tile_hits = 0
         # the decoders release the GIL: misses of one region are decoded in parallel, by the caller's thread and
-        # threads - 1 workers, each a contiguous share of them (one hand-off per worker and region, not per tile)
+        # threads - 1 workers, each every n-th of them (one hand-off per worker and region, not per tile)
         self._threads = threads
         self._pool = (
             ThreadPoolExecutor(threads - 1, thread_name_prefix="viva-sitl-tile-decode")
@@ -263,7 +263,7 @@ class TileCache:
 
         if len(misses) > 1 and self._pool is not None:
             n = min(self._threads, len(misses))
-            shares = [misses[len(misses) * k // n : len(misses) * (k + 1) // n] for k in range(n)]
+            shares = [misses[k::n] for k in range(n)]  # interleaved: a region may mix zstd and jpeg tiles
             futures = [self._pool.submit(decode, share) for share in shares[1:]]
             decode(shares[0])
             for fut in futures:
