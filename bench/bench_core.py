@@ -284,17 +284,24 @@ def reference_label(version: str, taken: Any) -> str:
     return label
 
 
-def reference_available(python: str) -> str | None:
-    """None when usable, else the reason to skip."""
-    exe = shutil.which(python) if os.sep not in python else (python if os.path.exists(python) else None)
-    if exe is None:
-        return f"reference interpreter not found: {python} (create it: see bench/reference/NOTES.md)"
+def viva_safeland_version(python: str) -> str | None:
+    """The viva-safeland version installed in interpreter `python` (e.g. "0.2.5"); None when it is not."""
     probe = subprocess.run(
         [python, "-c", "import importlib.metadata as m; print(m.version('viva-safeland'))"],
         capture_output=True,
         text=True,
     )
     if probe.returncode != 0:
+        return None
+    return probe.stdout.strip() or None
+
+
+def reference_available(python: str) -> str | None:
+    """None when usable, else the reason to skip."""
+    exe = shutil.which(python) if os.sep not in python else (python if os.path.exists(python) else None)
+    if exe is None:
+        return f"reference interpreter not found: {python} (create it: see bench/reference/NOTES.md)"
+    if viva_safeland_version(python) is None:
         return f"viva-safeland is not installed in {python} (pip install viva-safeland==0.2.0)"
     return None
 

@@ -29,6 +29,9 @@ import time
 from pathlib import Path
 from typing import Any
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import bench_core as core  # noqa: E402 - imports viva_sitl before cv2, as a user's program would
+
 SPIN = {  # OpenCV's defaults (modules/core/src/parallel_impl.cpp)
     "OPENCV_THREAD_POOL_ACTIVE_WAIT_PAUSE_LIMIT": "16",
     "OPENCV_THREAD_POOL_ACTIVE_WAIT_WORKER": "2000",
@@ -37,9 +40,14 @@ SPIN = {  # OpenCV's defaults (modules/core/src/parallel_impl.cpp)
 CONFIGS = ("sleep", "spin", "cv1")
 
 
+def _step_args(z: float, steps: int) -> argparse.Namespace:
+    """The step both sides fly (bench_core.Ours / Reference): 640x480 view, hovering at z, yaw 30 deg."""
+    return argparse.Namespace(
+        out_size="640x480", rel_alt=core.DEFAULT_REL_ALT_M, z=z, yaw_deg=30.0, steps=steps
+    )
+
+
 def child(args: argparse.Namespace) -> None:
-    sys.path.insert(0, str(Path(__file__).resolve().parent))
-    import bench_core as core  # imports viva_sitl before cv2, as a user's program would
     import cv2
 
     from viva_sitl.footage import autocache
@@ -48,11 +56,8 @@ def child(args: argparse.Namespace) -> None:
         cv2.setNumThreads(1)
     clip = core.make_clip(args.cache_dir, args.frames)
     autocache.set_policy(autocache.CachePolicy(root=args.cache_dir / "tiles-auto", show_progress=False))
-    core.apply_tile_environment()
-    ns = argparse.Namespace(
-        out_size="640x480", rel_alt=core.DEFAULT_REL_ALT_M, z=args.z[0], yaw_deg=30.0, steps=args.steps
-    )
-    ours = core.Ours(clip, ns, paper=False, render=True)
+    core.apply_tile_environment()  # the decode threads and LRU the parent put in this process's environment
+    ours = core.Ours(clip, _step_args(args.z[0], args.steps), paper=False, render=True)
     try:
         ours.run()  # warm-up: packs into the page cache, buffers allocated
         runs = [ours.run() for _ in range(args.rounds)]
@@ -71,7 +76,7 @@ def main() -> int:
     ap.add_argument("--rounds", type=int, default=5)
     ap.add_argument("--steps", type=int, default=120)
     ap.add_argument("--frames", type=int, default=60)
-    ap.add_argument("--tile-cache-mb", type=float, default=2.0)
+    core.add_tile_cache_arg(ap)
     ap.add_argument("--cache-dir", type=Path, default=Path("/tmp/viva-sitl-bench"))
     ap.add_argument("--json", type=Path)
     ap.add_argument("--ref-python", nargs="*", default=[],
@@ -82,6 +87,17 @@ def main() -> int:
     if args.child:
         child(args)
         return 0
+    if min(args.rounds, args.steps, args.frames, *args.decode_threads) < 1:
+        ap.error("--rounds, --steps, --frames and --decode-threads must be >= 1")
+    core.apply_tile_cache(ap, args)  # --tile-cache-mb checked, and in the environment the children get
+    try:
+        return _run(args)
+    except KeyboardInterrupt:
+        print("bench_cv_pool: interrupted; nothing written", file=sys.stderr)
+        return 130
+
+
+def _run(args: argparse.Namespace) -> int:
     from viva_sitl import opencv_pool
 
     base = opencv_pool.user_environ()  # a fresh shell's environment (no OPENCV_* set by this process)
@@ -103,7 +119,7 @@ def main() -> int:
             ref_row = {"z": z, "reference": name, "steps_per_s": statistics.median(r[0] for r in runs),
                        "cpu_ms_per_step": statistics.median(r[1] for r in runs), "runs": runs}  # fmt: skip
             refs_out.append(ref_row)
-            print(f"z {z:g} m  {name}: {ref_row['steps_per_s']:7.1f} steps/s  {ref_row['cpu_ms_per_step']:.2f} ms "
+            print(f"z {z:g} m  viva-safeland {name}: {ref_row['steps_per_s']:7.1f} steps/s  {ref_row['cpu_ms_per_step']:.2f} ms "
                   f"CPU/step (median of {len(runs)} rounds)", file=sys.stderr)  # fmt: skip
     _table(rows, refs_out)
     if args.json:
@@ -111,30 +127,29 @@ def main() -> int:
     return 0
 
 
-def _time_refs(refs: dict[str, Any], runs: dict[str, list[tuple[float, float]]]) -> None:
+def _time_refs(refs: dict[str, core.Reference], runs: dict[str, list[tuple[float, float]]]) -> None:
     """One round of each reference (steps/s, CPU ms per step)."""
     for name, ref in refs.items():
         runs[name].append(ref.run())
 
 
-def _references(args: argparse.Namespace, z: float) -> dict[str, Any]:
-    """The viva-safeland references of --ref-python at z, ready to run (labelled by the version each reports)."""
-    if not args.ref_python:
-        return {}
-    sys.path.insert(0, str(Path(__file__).resolve().parent))
-    import bench_core as core
-    from bench_tiles import _ref_version
-
-    clip = core.make_clip(args.cache_dir, args.frames)
-    ns = argparse.Namespace(
-        out_size="640x480", rel_alt=core.DEFAULT_REL_ALT_M, z=z, yaw_deg=30.0, steps=args.steps
-    )
-    out: dict[str, Any] = {}
-    for py in args.ref_python:
-        why = core.reference_available(py)
-        if why is not None:
-            raise SystemExit(f"bench_cv_pool: reference {py}: {why}")
-        out[f"viva-safeland {_ref_version(py)}"] = core.Reference(py, clip, ns)
+def _references(args: argparse.Namespace, z: float) -> dict[str, core.Reference]:
+    """The viva-safeland references of --ref-python at z, ready to run, by the version each reports ("0.2.0", made
+    unique: "0.2.0#2")."""
+    clip = core.make_clip(args.cache_dir, args.frames) if args.ref_python else None
+    out: dict[str, core.Reference] = {}
+    try:
+        for py in args.ref_python:
+            why = core.reference_available(py)
+            if why is not None:
+                raise SystemExit(f"bench_cv_pool: {why}")
+            assert clip is not None
+            ref = core.Reference(py, clip, _step_args(z, args.steps))
+            out[core.reference_label(str(ref.info.get("version", "unknown")), out)] = ref
+    except BaseException:
+        for ref in out.values():
+            ref.close()
+        raise
     return out
 
 
@@ -142,8 +157,7 @@ def _config(
     args: argparse.Namespace, base: dict[str, str], z: float, cfg: str, threads: int
 ) -> dict[str, Any]:
     """One configuration's child process at z: its medians."""
-    env = dict(base, VIVA_SITL_TILE_CACHE_MB=f"{args.tile_cache_mb:g}",
-               VIVA_SITL_TILE_DECODE_THREADS=str(threads), **(SPIN if cfg == "spin" else {}))  # fmt: skip
+    env = dict(base, VIVA_SITL_TILE_DECODE_THREADS=str(threads), **(SPIN if cfg == "spin" else {}))
     cmd = [sys.executable, __file__, "--child", cfg, "--z", f"{z:g}", "--rounds", str(args.rounds),
            "--steps", str(args.steps), "--frames", str(args.frames), "--cache-dir", str(args.cache_dir)]  # fmt: skip
     t0 = time.perf_counter()
@@ -163,7 +177,7 @@ def _table(rows: list[dict[str, Any]], refs: list[dict[str, Any]]) -> None:
     """The markdown table: each configuration, and its wall / CPU ratio to each reference at its z."""
     names = list(dict.fromkeys(r["reference"] for r in refs))
     head = "| z | OpenCV pool | decode threads | steps/s | CPU ms/step |"
-    head += "".join(f" vs {n} wall / CPU |" for n in names)
+    head += "".join(f" vs viva-safeland {n} wall / CPU |" for n in names)
     print(head + "\n|---|---|---:|---:|---:|" + "---|" * len(names))
     for r in rows:
         line = (f"| {r['z']:g} m | {r['config']} | {r['decode_threads']} | {r['steps_per_s']:.1f} | "
@@ -175,7 +189,7 @@ def _table(rows: list[dict[str, Any]], refs: list[dict[str, Any]]) -> None:
         print(line)
     for ref in refs:
         print(
-            f"| {ref['z']:g} m | {ref['reference']} | | {ref['steps_per_s']:.1f} | {ref['cpu_ms_per_step']:.2f} |"
+            f"| {ref['z']:g} m | viva-safeland {ref['reference']} | | {ref['steps_per_s']:.1f} | {ref['cpu_ms_per_step']:.2f} |"
             + " |" * len(names)
         )
 

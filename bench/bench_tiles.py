@@ -178,9 +178,7 @@ def bench_steps(args: argparse.Namespace, clip: Path) -> dict[str, Any]:
 
 def _ref_version(python: str) -> str:
     """The viva-safeland version installed in interpreter `python` (e.g. "0.2.5")."""
-    probe = subprocess.run([python, "-c", "import importlib.metadata as m; print(m.version('viva-safeland'))"],
-                           capture_output=True, text=True)  # fmt: skip
-    return probe.stdout.strip() or "other"
+    return core.viva_safeland_version(python) or "other"
 
 
 def replace_ns(ns: argparse.Namespace, **kw: Any) -> argparse.Namespace:

@@ -55,11 +55,10 @@ REPO = Path(__file__).resolve().parents[1]
 if str(REPO) not in sys.path:  # the pilot class below is imported by name in the pool's workers
     sys.path.insert(0, str(REPO))
 
-import viva_sitl  # noqa: E402, F401, I001 - before cv2, as the `viva-sitl` commands (viva_sitl.opencv_pool)
+from viva_sitl import opencv_pool  # noqa: E402, I001 - before cv2, as the `viva-sitl` commands (opencv_pool)
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
-from viva_sitl import opencv_pool  # noqa: E402
 from viva_sitl.dynamics import EavCommand  # noqa: E402
 
 TRIAL_S = 60.0
@@ -248,9 +247,12 @@ def build_auto_cache(clip: Path, policy: Any) -> dict[str, Any]:
 
 
 def ref_version(python: str) -> str:
-    out = subprocess.run([python, "-c", "import importlib.metadata as m; print(m.version('viva-safeland'))"],
-                         capture_output=True, text=True, check=True)  # fmt: skip
-    return out.stdout.strip()
+    from bench.bench_core import viva_safeland_version
+
+    version = viva_safeland_version(python)
+    if version is None:
+        raise SystemExit(f"bench_trials: viva-safeland is not installed in {python}")
+    return version
 
 
 def per_hour(r: dict[str, Any]) -> tuple[float, float]:

@@ -218,9 +218,10 @@ def run_external_trial(
     pcmd = pilot_command(command, values) if command is not None else None
     # this process's tile settings (a campaign worker's: an argument, not its environment) reach the `viva-sitl run`
     # child as the documented variables, which it reads on its top floor
-    sitl_env = {**os.environ, **process_settings().to_environ()}
+    tile_env = process_settings().to_environ()
+    sitl_env = {**os.environ, **tile_env}
     # the pilot: the user's program gets the environment without what viva_sitl set for its own OpenCV
-    env = {**opencv_pool.user_environ(), **process_settings().to_environ()}
+    env = {**opencv_pool.user_environ(), **tile_env}
     env.update({f"VIVA_SITL_{k.upper()}": v for k, v in values.items() if k != "python"})
     env["PYTHONUNBUFFERED"] = "1"
     limit = wall_limit_s if wall_limit_s is not None else trial_wall_limit_s(spec)
