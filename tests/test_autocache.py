@@ -176,7 +176,7 @@ def test_a_second_process_waits_for_the_build_in_progress(tmp_path: Path) -> Non
             assert builder.poll() is None, builder.communicate()
             assert time.monotonic() < deadline, "the builder never started"
             time.sleep(0.02)
-        key = autocache.content_key(clip, CachePolicy(root=root))
+        key = autocache.content_key(clip, CachePolicy(root=root), (320, 240))
         reader = subprocess.Popen(
             [sys.executable, "-c", CHILD_READER, str(clip), str(root)],
             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
@@ -381,9 +381,9 @@ def test_a_cache_of_another_zstd_level_is_not_reused(tmp_path: Path, monkeypatch
 
     clip = _clip(tmp_path, "zlevel")
     policy = _policy(tmp_path / "cache")
-    now = autocache.content_key(clip, policy)
+    now = autocache.content_key(clip, policy, (320, 240))
     monkeypatch.setattr(tile_format, "YUVZ_LEVEL", 3)
-    old = autocache.content_key(clip, policy)
+    old = autocache.content_key(clip, policy, (320, 240))
     assert old != now
     with open_footage(str(clip.with_suffix(".toml")), cache=policy) as level3:
         assert isinstance(level3, TileSource)
@@ -394,4 +394,42 @@ def test_a_cache_of_another_zstd_level_is_not_reused(tmp_path: Path, monkeypatch
         assert isinstance(fast, TileSource) and fast.cache.folder.name == now  # built anew beside the other
         assert np.array_equal(fast.frame(1), pixels3)
         assert fast.cache.disk_bytes != bytes3
+    assert {e.folder.name for e in autocache.list_caches(policy.directory())} == {old, now}
+
+
+def test_the_automatic_cache_has_128_px_tiles_at_level_0_and_rebuilds_a_uniform_one(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A yuv420z automatic cache of footage up to 4K stores level 0 as 128 px tiles and the levels above as 256 px
+    ones (format 3); above 4K (8K) level 0 keeps 256 px tiles (the same key and cache as before). The level-0 tile
+    size is part of the key, so a cache built with 256 px tiles everywhere (before) is rebuilt beside it, not kept;
+    both give the same pixels."""
+    assert (
+        autocache.level0_tile_px("yuv420z", (3840, 2160))
+        == autocache.level0_tile_px("yuv420z", (4096, 2160))
+        == 128
+    )
+    assert (
+        autocache.level0_tile_px("yuv420z", (7680, 4320))
+        == autocache.level0_tile_px("jpeg", (3840, 2160))
+        == 256
+    )
+    clip = _clip(tmp_path, "level0")
+    policy = _policy(tmp_path / "cache")
+    now = autocache.content_key(clip, policy, (320, 240))
+    monkeypatch.setattr(autocache, "AUTO_LEVEL0_TILE_PX", 256)
+    old = autocache.content_key(clip, policy, (320, 240))
+    assert old != now
+    with open_footage(str(clip.with_suffix(".toml")), cache=policy) as uniform:
+        assert isinstance(uniform, TileSource)
+        assert uniform.cache.layout.tile_size(0) == uniform.cache.layout.tile_size(1) == 256
+        pixels = [uniform.frame(1), uniform.frame(1, level=1)]
+    monkeypatch.undo()
+    with open_footage(str(clip.with_suffix(".toml")), cache=policy) as mixed:
+        assert isinstance(mixed, TileSource) and mixed.cache.folder.name == now
+        assert (mixed.cache.layout.tile_size(0), mixed.cache.layout.tile_size(1)) == (128, 256)
+        meta = json.loads((mixed.cache.folder / "tiles" / "meta.json").read_text())
+        assert meta["version"] == 3 and meta["tile_px_level0"] == 128
+        assert np.array_equal(mixed.frame(1), pixels[0])
+        assert np.array_equal(mixed.frame(1, level=1), pixels[1])
     assert {e.folder.name for e in autocache.list_caches(policy.directory())} == {old, now}

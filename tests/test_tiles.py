@@ -8,6 +8,7 @@ import json
 import math
 import os
 import shutil
+import sys
 from collections.abc import Iterator
 from dataclasses import replace
 from pathlib import Path
@@ -360,6 +361,55 @@ def test_an_interrupted_build_resumes_and_ends_byte_identical(clip: Path, tmp_pa
         assert (tdir / name).read_bytes() == (tmp_path / "fresh" / "tiles" / name).read_bytes()
 
 
+def test_a_level_0_tile_size_of_its_own_reads_the_same_pixels(
+    clip: Path, caches: dict[str, Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """128 px tiles at level 0 and 256 px above (the automatic yuv420z cache's layout): format 3, the level-0 grid
+    of 128 px tiles, and every level's pixels equal the uniform 256 px cache's (raw: both lossless; yuv420z: the
+    4:2:0 blocks do not straddle a tile edge either way). A reader that knows only formats 1 and 2 refuses it in
+    one line instead of misreading level 0."""
+    from viva_sitl.footage.tiles import FORMATS
+    from viva_sitl.footage.tiles import format as tile_format
+
+    for codec in ("raw", "yuv420z"):
+        folder = tmp_path / codec
+        args = dict(frame_count=FRAMES, width_px=W, height_px=H, fps=25.0, codec=codec, show_progress=False)
+        build_tiles(_frames(clip, FRAMES), folder=folder, tile_px=256, level0_tile_px=128, **args)  # type: ignore[arg-type]
+        meta = json.loads((folder / "tiles" / "meta.json").read_text())
+        assert meta["version"] == 3 and meta["tile_px"] == 256 and meta["tile_px_level0"] == 128
+        mixed = TileSource(fresh_meta(clip), folder, lambda w, h: FootageGeometry.from_fov(w, h, ALT_M, HFOV))
+        uniform = open_footage(str(caches[codec]))
+        assert isinstance(uniform, TileSource)
+        try:
+            lay = mixed.cache.layout
+            assert lay.grid[0] == (10, 6) and lay.grid[1] == uniform.cache.layout.grid[1] == (3, 2)
+            assert (lay.tile_size(0), lay.tile_size(1)) == (128, 256)
+            assert uniform.cache.layout.grid[0] == (5, 3)
+            assert "(128 px at level 0)" in mixed.describe()["tile_cache"]
+            for f in range(FRAMES):
+                for lv in (0, 1, 2):
+                    lw, lh = lay.levels[lv]
+                    a = mixed.region(f, lv, 0, 0, lw, lh)
+                    b = uniform.region(f, lv, 0, 0, lw, lh)
+                    assert np.array_equal(a, b), (codec, f, lv)
+            # a footprint's box at level 0 reads the 128 px tiles under it, into BGRA as the renderer asks
+            out = np.zeros((301 - 50, 400 - 16, 4), np.uint8)
+            got = mixed.region(1, 0, 16, 50, 400, 301, out=out)
+            assert np.array_equal(got[..., :3], uniform.region(1, 0, 16, 50, 400, 301))
+            assert mixed.cache.tiles_under(0, 16, 50, 400, 301) == [
+                (x, y) for y in (0, 1, 2) for x in (0, 1, 2, 3)
+            ]
+        finally:
+            mixed.close()
+            uniform.close()
+        monkeypatch.setattr(tile_format, "FORMATS", {k: v for k, v in FORMATS.items() if k <= 2})
+        monkeypatch.setattr(sys.modules["viva_sitl.footage.tiles.read"], "FORMATS", tile_format.FORMATS)
+        with pytest.raises(FootageError, match="unknown format") as exc:
+            TileSource(fresh_meta(clip), folder, lambda w, h: FootageGeometry.from_fov(w, h, ALT_M, HFOV))
+        assert "\n" not in str(exc.value)
+        monkeypatch.undo()
+
+
 def fresh_meta(clip: Path):  # type: ignore[no-untyped-def]
     from viva_sitl.footage import resolve_metadata
 
@@ -591,11 +641,11 @@ def test_tiles_under_equals_the_vectorised_selection() -> None:
     vectorised separating-axis test, over random footprints (rotated, sheared, touching tile edges)."""
     from types import SimpleNamespace
 
-    from viva_sitl.footage.tiles import TileCache
+    from viva_sitl.footage.tiles import TileCache, TileLayout
 
     rng = np.random.default_rng(5)
     ts = 256
-    cache = SimpleNamespace(layout=SimpleNamespace(tile_px=ts))
+    cache = SimpleNamespace(layout=TileLayout.of(4096, 4096, ts))
     dropped = 0
     for k in range(300):
         c = rng.uniform(0, 3000, 2)

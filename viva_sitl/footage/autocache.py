@@ -8,8 +8,9 @@ progress bar and then reused. Smaller videos (the README's examples, the embedde
 field) are opened as before.
 
 - Key: SHA-256 of the file's size and 8 blocks of 1 MiB read at evenly spaced offsets (first and last included), the
-  tile format version, codec and tile size. A changed file gets a new key (its old cache ages out of the LRU); the
-  key does not depend on the file's path, so a renamed or copied file reuses its cache.
+  tile format version, codec and tile sizes (yuv420z up to 4K: 128 px tiles at level 0, `level0_tile_px`). A changed
+  file gets a new key (its old cache ages out of the LRU); the key does not depend on the file's path, so a renamed
+  or copied file reuses its cache.
 - Built once, concurrency-safe: a builder holds an exclusive `flock` on `<key>.lock` and writes `<key>.partial/`;
   only a complete build is renamed to `<key>/`. A second process (another campaign, a trial worker) blocks on the
   same lock, logs one line that it waits, then opens the finished cache: nothing reads a half-written cache.
@@ -51,6 +52,15 @@ SAMPLE_BLOCKS = 8
 SAMPLE_BYTES = 1 << 20
 LAST_USED = "last_used"
 SOURCE_INFO = "source.json"
+# level 0's tiles in a yuv420z cache of footage up to AUTO_LEVEL0_MAX_SIDE_PX (levels >= 1 keep tiles.DEFAULT_TILE_PX):
+# a view below ~100 m reads level 0, where a 256 px tile decodes up to ~3x the pixels under a small footprint, and a
+# yuv420z tile's fixed cost (a read, a checksum, a zstd frame) is small against a JPEG's. 4K bench clip
+# (bench/results_tiles.md, session 17): a trial worker -9 % CPU, the full step at 50 m -10 % CPU on 2 decode threads,
+# -13 % on one; 128 px at level 1 too would cost 300 m (which reads level 1) ~20 %. Larger footage (8K) keeps 256 px:
+# there a 256 px tile covers the ground a 128 px tile of 4K does, and its cache stays within 32 MiB per frame (128 px
+# tiles compress ~1.3 % worse: 32.2 MiB per 8K frame).
+AUTO_LEVEL0_TILE_PX = 128
+AUTO_LEVEL0_MAX_SIDE_PX = 4096
 
 
 @dataclass(frozen=True)
@@ -135,12 +145,25 @@ def _codec_layout(codec: str) -> str:
     return layout
 
 
-def content_key(path: Path, policy: CachePolicy) -> str:
-    """The cache key of a video file (see the module docstring)."""
+def _level0_key(codec: str, size_px: tuple[int, int]) -> str:
+    """The level-0 tile size in the key where it differs (caches built with uniform tiles get a new key)."""
+    l0 = level0_tile_px(codec, size_px)
+    return "" if l0 == tiles.DEFAULT_TILE_PX else f" level0 {l0}"
+
+
+def level0_tile_px(codec: str, size_px: tuple[int, int]) -> int:
+    """The automatic cache's level-0 tile size for `codec` and footage of `size_px` (w, h)."""
+    if codec == "yuv420z" and max(size_px) <= AUTO_LEVEL0_MAX_SIDE_PX:
+        return AUTO_LEVEL0_TILE_PX
+    return tiles.DEFAULT_TILE_PX
+
+
+def content_key(path: Path, policy: CachePolicy, size_px: tuple[int, int]) -> str:
+    """The cache key of a video file of frame size `size_px` (w, h) (see the module docstring)."""
     size = path.stat().st_size
     h = hashlib.sha256(
         f"viva-sitl tiles v{tiles.FORMAT_VERSION} {policy.codec}{_codec_layout(policy.codec)} "
-        f"{tiles.DEFAULT_TILE_PX} {size}".encode()
+        f"{tiles.DEFAULT_TILE_PX}{_level0_key(policy.codec, size_px)} {size}".encode()
     )
     with open(path, "rb") as f:
         span = max(0, size - SAMPLE_BYTES)
@@ -288,7 +311,7 @@ def ensure_cache(path: Path, frames: object, frame_count: int, size_px: tuple[in
     it is not cached (over the size bound: one warning line). `frames` is a callable returning the frames in
     order (called only when a build is needed)."""
     root = policy.directory()
-    key = content_key(path, policy)
+    key = content_key(path, policy, size_px)
     folder = root / key
     if folder.is_dir():
         try:
@@ -319,7 +342,8 @@ def ensure_cache(path: Path, frames: object, frame_count: int, size_px: tuple[in
         try:
             assert callable(frames)
             tiles.build_tiles(
-                frames(), frame_count, w, h, fps, partial, codec=policy.codec, max_bytes=policy.max_bytes,
+                frames(), frame_count, w, h, fps, partial, codec=policy.codec,
+                level0_tile_px=level0_tile_px(policy.codec, size_px), max_bytes=policy.max_bytes,
                 source_id=key, show_progress=policy.show_progress, desc=f"tile cache {what}",
             )  # fmt: skip
         except FootageError as exc:

@@ -22,6 +22,7 @@ from viva_sitl.footage.tiles.format import (
     DEFAULT_JPEG_QUALITY,
     DEFAULT_TILE_PX,
     FORMAT_VERSION,
+    FORMAT_VERSION_LEVEL0,
     INDEX_DTYPE,
     JPEG_FALLBACK_QUALITIES,
     PACK_BYTES,
@@ -88,6 +89,7 @@ def build_tiles(
     codec: str = DEFAULT_CODEC,
     quality: int = DEFAULT_JPEG_QUALITY,
     tile_px: int = DEFAULT_TILE_PX,
+    level0_tile_px: int | None = None,
     max_bytes: int | None = None,
     source_id: str = "",
     progress_file: TextIO | None = None,
@@ -96,6 +98,7 @@ def build_tiles(
     threads: int = 2,
 ) -> TileBuildResult:
     """Write (or resume) the tiles of `frames` (an iterator of BGR frames, in order) under `folder`/tiles.
+    `level0_tile_px`: level 0's own tile size (None: `tile_px`; a different one writes format 3).
 
     Resumable: the packs and index are written in frame order and progress.json records, every COMMIT_FRAMES
     frames, how many frames are complete and how long each pack was then; a rerun with the same source and options
@@ -110,9 +113,12 @@ def build_tiles(
         raise FootageError(f"tile quality must be 1..100, got {quality}")
     if frame_count <= 0:
         raise FootageError("no frames to tile")
-    if tile_px < 16 or tile_px > 4096:
-        raise FootageError(f"tile size must be 16..4096 px, got {tile_px}")
-    layout = TileLayout.of(width_px, height_px, tile_px)
+    l0 = tile_px if level0_tile_px is None else level0_tile_px
+    if not (16 <= tile_px <= 4096 and 16 <= l0 <= 4096):
+        raise FootageError(
+            f"tile size must be 16..4096 px, got {tile_px}" + (f" (level 0: {l0})" if l0 != tile_px else "")
+        )
+    layout = TileLayout.of(width_px, height_px, tile_px, l0)
     tdir = Path(folder) / TILES_SUBDIR
     tdir.mkdir(parents=True, exist_ok=True)
     want = {
@@ -121,6 +127,8 @@ def build_tiles(
         "levels": [list(s) for s in layout.levels], "asked_quality": quality,
         "max_bytes": max_bytes,
     }  # fmt: skip
+    if l0 != tile_px:  # format 3: level 0's own tile size (a uniform cache keeps format 2's meta.json)
+        want.update(version=FORMAT_VERSION_LEVEL0, tile_px_level0=l0)
     old: dict[str, Any] = {}
     with contextlib.suppress(OSError, ValueError):
         old = json.loads((tdir / "meta.json").read_text(encoding="utf-8"))

@@ -23,6 +23,9 @@ U8 = NDArray[np.uint8]
 
 TILES_SUBDIR = "tiles"
 FORMAT_VERSION = 2
+# format 3: format 2 whose level 0 has a tile size of its own (meta.json's "tile_px_level0"); written only for such a
+# cache, so that a viva-sitl that does not know it refuses it (unknown format) instead of misreading level 0
+FORMAT_VERSION_LEVEL0 = 3
 DEFAULT_TILE_PX = 256
 DEFAULT_CODEC = "jpeg"
 CODECS = ("jpeg", "png", "raw", "yuv420z")
@@ -59,7 +62,7 @@ _JPEG_444 = (cv2.IMWRITE_JPEG_SAMPLING_FACTOR, cv2.IMWRITE_JPEG_SAMPLING_FACTOR_
 
 @dataclass(frozen=True)
 class TileLayout:
-    """Level sizes and tile grid of one footage size."""
+    """Level sizes and tile grid of one footage size: `tile_px` square tiles, level 0's `level0_px` (0: `tile_px`)."""
 
     width_px: int
     height_px: int
@@ -67,21 +70,30 @@ class TileLayout:
     levels: tuple[tuple[int, int], ...]  # (w, h) per level
     grid: tuple[tuple[int, int], ...]  # (tiles across, tiles down) per level
     first: tuple[int, ...]  # index of each level's first tile within a frame
+    level0_px: int = 0
 
     @staticmethod
-    def of(width_px: int, height_px: int, tile_px: int) -> TileLayout:
-        if width_px <= 0 or height_px <= 0 or tile_px < 16:
-            raise FootageError(f"bad tile layout {width_px}x{height_px}, tile {tile_px} px")
+    def of(width_px: int, height_px: int, tile_px: int, level0_px: int | None = None) -> TileLayout:
+        l0 = tile_px if level0_px is None else level0_px
+        if width_px <= 0 or height_px <= 0 or min(tile_px, l0) < 16:
+            raise FootageError(
+                f"bad tile layout {width_px}x{height_px}, tile {tile_px} px (level 0: {l0} px)"
+            )
         sizes = [(width_px, height_px)]
         for _ in range(max_pyramid_level(width_px, height_px)):
             w, h = sizes[-1]
             sizes.append(((w + 1) // 2, (h + 1) // 2))
-        grid = [(-(-w // tile_px), -(-h // tile_px)) for w, h in sizes]
+        sides = [l0] + [tile_px] * (len(sizes) - 1)
+        grid = [(-(-w // t), -(-h // t)) for (w, h), t in zip(sizes, sides, strict=True)]
         first, n = [], 0
         for nx, ny in grid:
             first.append(n)
             n += nx * ny
-        return TileLayout(width_px, height_px, tile_px, tuple(sizes), tuple(grid), tuple(first))
+        return TileLayout(width_px, height_px, tile_px, tuple(sizes), tuple(grid), tuple(first), l0)
+
+    def tile_size(self, level: int) -> int:
+        """The side of level `level`'s tiles, px."""
+        return (self.level0_px or self.tile_px) if level == 0 else self.tile_px
 
     @property
     def tiles_per_frame(self) -> int:
@@ -106,6 +118,7 @@ def tile_checksum(data: bytes | memoryview) -> int:
 FORMATS: dict[int, tuple[np.dtype[Any], Callable[[bytes], int]]] = {
     1: (INDEX_DTYPE_V1, zlib.crc32),
     2: (INDEX_DTYPE, tile_checksum),
+    FORMAT_VERSION_LEVEL0: (INDEX_DTYPE, tile_checksum),
 }
 
 
@@ -212,9 +225,9 @@ def encode_frame(
 ) -> list[bytes]:
     """The encoded tiles of one frame, in index order (level by level, row by row)."""
     jobs: list[tuple[U8, int]] = []
-    t = layout.tile_px
     for level, img in enumerate(frame_pyramid(frame_bgr)):
         nx, ny = layout.grid[level]
+        t = layout.tile_size(level)
         for ty in range(ny):
             for tx in range(nx):
                 jobs.append((np.ascontiguousarray(img[ty * t : (ty + 1) * t, tx * t : (tx + 1) * t]), level))

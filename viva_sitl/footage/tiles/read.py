@@ -57,7 +57,12 @@ class TileCache:
         meta = self._read_meta()
         index_dtype, self._checksum = FORMATS[int(meta["version"])]
         try:
-            self.layout = TileLayout.of(int(meta["width_px"]), int(meta["height_px"]), int(meta["tile_px"]))
+            self.layout = TileLayout.of(
+                int(meta["width_px"]),
+                int(meta["height_px"]),
+                int(meta["tile_px"]),
+                int(meta["tile_px_level0"]) if "tile_px_level0" in meta else None,
+            )
             self.frame_count = int(meta["frames"])
             self.fps = float(meta["fps"])
             self.codec = str(meta["codec"])
@@ -163,7 +168,7 @@ class TileCache:
         check the size, keep the tile in the LRU."""
         img = _decode(data, self.codec, bgra)
         lw, lh = self.layout.levels[level]
-        ts = self.layout.tile_px
+        ts = self.layout.tile_size(level)
         want = (min(ts, lh - ty * ts), min(ts, lw - tx * ts))
         if img is None or img.ndim != 3 or img.shape[:2] != want or img.shape[2] not in (3, 4):
             raise self._error(f"frame {frame} level {level} tile ({tx}, {ty}): does not decode to a "
@@ -201,7 +206,7 @@ class TileCache:
     ) -> list[tuple[int, int]]:
         """(tx, ty) of the tiles of level `level` meeting [x0, x1) x [y0, y1); with `quad` (a convex polygon in
         level pixel coordinates, e.g. the VAC footprint) only those within `margin_px` of it (separating axes)."""
-        ts = self.layout.tile_px
+        ts = self.layout.tile_size(level)
         txs = range(x0 // ts, (x1 - 1) // ts + 1)
         grid = [(x, y) for y in range(y0 // ts, (y1 - 1) // ts + 1) for x in txs]  # row-major
         if quad is None or len(quad) < 3:
@@ -252,7 +257,7 @@ class TileCache:
         if out.shape[:2] != (y1 - y0, x1 - x0) or out.ndim != 3 or out.shape[2] not in (3, 4):
             raise ValueError(f"out must be a {x1 - x0}x{y1 - y0} BGR or BGRA array, got shape {out.shape}")
         bgra = out.shape[2] == 4
-        ts = self.layout.tile_px
+        ts = self.layout.tile_size(level)
         todo = self.tiles_under(level, x0, y0, x1, y1, quad, margin_px)
         got = [self._read(frame, level, tx, ty) for tx, ty in todo]
         misses = [i for i, g in enumerate(got) if not isinstance(g, np.ndarray)]
@@ -386,7 +391,9 @@ class TileSource(FootageSource):
         c = self.cache
         out["tile_cache"] = (
             f"{c.codec}" + (f" q{c.quality}" if c.codec == "jpeg" else "")
-            + f", {c.layout.tile_px} px tiles, {len(c.layout.levels)} levels, {c.disk_bytes / 2**20:.1f} MiB"
+            + f", {c.layout.tile_px} px tiles"
+            + (f" ({c.layout.tile_size(0)} px at level 0)" if c.layout.tile_size(0) != c.layout.tile_px else "")
+            + f", {len(c.layout.levels)} levels, {c.disk_bytes / 2**20:.1f} MiB"
         )  # fmt: skip
         return out
 
