@@ -2,7 +2,8 @@
 
 Every footage frame is stored as its full mip-map pyramid (level 0 = the decoded frame, each level the 2x2 box
 halving of the previous one, exactly as `viva_sitl.camera.LazyPyramid` builds it), each level cut into
-`tile_px` x `tile_px` tiles, each tile intra-coded on its own (as map tile servers and cloud-optimised GeoTIFFs do).
+`tile_px` x `tile_px` tiles (level 0 may have a size of its own: format 3, below), each tile intra-coded on its own
+(as map tile servers and cloud-optimised GeoTIFFs do).
 A render decodes only the tiles under the VAC's footprint at the level(s) it samples; decoded tiles are kept in an
 LRU with a byte cap (256 MiB; `TileSettings`, an argument or the process's; `$VIVA_SITL_TILE_CACHE_MB` is read by
 the top floor, not here, see `settings.py`).
@@ -25,6 +26,11 @@ decode), "raw" (uncompressed BGR: bit-identical and the cheapest decode, a memor
 than jpeg, coarser levels as jpeg 4:4:4; ~0.7-1.0 byte per footage pixel, see `_encode`).
 Every tile read checks its length and checksum and the decoded shape; any mismatch, a missing pack or level, or a bad
 index raises a one-line `FootageError` naming the cache and the command that rebuilds it: never a wrong image.
+
+Format 3 is format 2 with level 0 cut into tiles of their own size (meta.json's `tile_px_level0`; the automatic
+yuv420z cache of footage up to 4K uses 128 px there, 256 px above: a view near the ground reads a small footprint of
+level 0, and smaller tiles decode fewer pixels around it). A uniform cache keeps format 2, so older readers still
+open it; they refuse a format-3 cache in one line instead of misreading its level 0.
 
 The checksum (format 2) is `tile_checksum`: the tile's bytes summed as little-endian 64-bit words, modulo 2^64,
 plus its length. It catches truncation, any changed byte or run of bytes, zeroed or overwritten ranges; what it
