@@ -29,6 +29,8 @@ import time
 from pathlib import Path
 from typing import Any
 
+# this checkout's viva_sitl (not an installed one: a second clone measures its own code), then bench_core
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import bench_core as core  # noqa: E402 - imports viva_sitl before cv2, as a user's program would
 
