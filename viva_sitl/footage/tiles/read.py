@@ -5,6 +5,7 @@ environment."""
 from __future__ import annotations
 
 import json
+import os
 import threading
 from collections import OrderedDict
 from collections.abc import Callable
@@ -151,16 +152,13 @@ class TileCache:
                 return hit
             if not self._packs:
                 raise FootageError(f"tile cache {self.folder} is closed")
-            rec = self.index[frame * self.layout.tiles_per_frame + t]
-            length = int(rec["length"])
-            f = self._packs[int(rec["pack"])]
-            f.seek(int(rec["offset"]))
-            data = f.read(length)
-        where = f"frame {frame} level {level} tile ({tx}, {ty})"
+            # the record as Python ints in one call (pack, length, offset, check[, pad]); one positional read
+            pack, length, offset, check = self.index[frame * self.layout.tiles_per_frame + t].item()[:4]
+            data = os.pread(self._packs[pack].fileno(), length, offset)
         if len(data) != length:
-            raise self._error(f"{where}: pack truncated")
-        if self._checksum(data) != int(rec["check"]):
-            raise self._error(f"{where}: checksum mismatch")
+            raise self._error(f"frame {frame} level {level} tile ({tx}, {ty}): pack truncated")
+        if self._checksum(data) != check:
+            raise self._error(f"frame {frame} level {level} tile ({tx}, {ty}): checksum mismatch")
         return data
 
     def _decoded(self, frame: int, level: int, tx: int, ty: int, data: bytes, bgra: bool = False) -> U8:
