@@ -13,6 +13,7 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
@@ -24,7 +25,7 @@ from viva_sitl.footage import autocache, open_footage
 from viva_sitl.footage.autocache import CachePolicy
 from viva_sitl.footage.source import VideoSource
 from viva_sitl.footage.testclip import write_coded_clip
-from viva_sitl.footage.tiles import TileSource
+from viva_sitl.footage.tiles import TileLayout, TileSource
 from viva_sitl.sim import Simulator
 
 REPO = Path(__file__).resolve().parents[1]
@@ -134,6 +135,7 @@ def test_render_cli_caches_4k_footage_unless_no_cache(tmp_path: Path) -> None:
 CHILD_BUILDER = """
 import sys, time
 from pathlib import Path
+from typing import Any
 from viva_sitl.footage import open_footage, autocache
 clip, root, started, go = (Path(a) for a in sys.argv[1:5])
 pol = autocache.CachePolicy(root=root, min_pixels=1, show_progress=False)
@@ -152,6 +154,7 @@ print(autocache.ensure_cache(clip, slow, n, size, fps, pol, "a"), flush=True)
 CHILD_READER = """
 import logging, sys
 from pathlib import Path
+from typing import Any
 from viva_sitl.footage import open_footage, autocache
 logging.basicConfig(level=logging.INFO, format="%(levelname)s %(message)s")
 clip, root = Path(sys.argv[1]), Path(sys.argv[2])
@@ -374,27 +377,39 @@ def test_trials_search_hands_the_cache_flags_to_its_pool_workers(
     assert not (tmp_path / "mine").exists()
 
 
+def _older_layout_then_today(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, target: object, attr: str, value: object
+) -> tuple[dict[str, Any], dict[str, Any]]:
+    """The automatic cache of a fresh clip built under an older layout (`target.attr` = `value`), then under today's:
+    the two keys differ, today's cache is built anew beside the older one (both listed), and both give the same
+    pixels (frame 1, levels 0 and 1). Returns what each held: bytes on disk, layout, meta.json."""
+    clip = _clip(tmp_path, attr.lower())
+    policy = _policy(tmp_path / "cache")
+    now = autocache.content_key(clip, policy, (320, 240))
+    monkeypatch.setattr(target, attr, value)
+    old = autocache.content_key(clip, policy, (320, 240))
+    assert old != now
+    held: list[dict[str, Any]] = []
+    for key in (old, now):
+        with open_footage(str(clip.with_suffix(".toml")), cache=policy) as src:
+            assert isinstance(src, TileSource) and src.cache.folder.name == key
+            held.append({"pixels": [src.frame(1), src.frame(1, level=1)], "bytes": src.cache.disk_bytes,
+                         "layout": src.cache.layout,
+                         "meta": json.loads((src.cache.folder / "tiles" / "meta.json").read_text())})  # fmt: skip
+        monkeypatch.undo()
+    for a, b in zip(held[0]["pixels"], held[1]["pixels"], strict=True):
+        assert np.array_equal(a, b)
+    assert {e.folder.name for e in autocache.list_caches(policy.directory())} == {old, now}
+    return held[0], held[1]
+
+
 def test_a_cache_of_another_zstd_level_is_not_reused(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """The zstd level is part of the key: a cache built at level 3 (before level -1 decoded faster) is rebuilt,
     not kept (as a change of the levels stored as zstd); both decode to the same pixels (zstd is lossless)."""
     from viva_sitl.footage.tiles import format as tile_format
 
-    clip = _clip(tmp_path, "zlevel")
-    policy = _policy(tmp_path / "cache")
-    now = autocache.content_key(clip, policy, (320, 240))
-    monkeypatch.setattr(tile_format, "YUVZ_LEVEL", 3)
-    old = autocache.content_key(clip, policy, (320, 240))
-    assert old != now
-    with open_footage(str(clip.with_suffix(".toml")), cache=policy) as level3:
-        assert isinstance(level3, TileSource)
-        pixels3 = level3.frame(1)
-        bytes3 = level3.cache.disk_bytes
-    monkeypatch.undo()
-    with open_footage(str(clip.with_suffix(".toml")), cache=policy) as fast:
-        assert isinstance(fast, TileSource) and fast.cache.folder.name == now  # built anew beside the other
-        assert np.array_equal(fast.frame(1), pixels3)
-        assert fast.cache.disk_bytes != bytes3
-    assert {e.folder.name for e in autocache.list_caches(policy.directory())} == {old, now}
+    level3, fast = _older_layout_then_today(tmp_path, monkeypatch, tile_format, "YUVZ_LEVEL", 3)
+    assert fast["bytes"] != level3["bytes"]
 
 
 def test_the_automatic_cache_has_128_px_tiles_at_level_0_and_rebuilds_a_uniform_one(
@@ -414,22 +429,9 @@ def test_the_automatic_cache_has_128_px_tiles_at_level_0_and_rebuilds_a_uniform_
         == autocache.level0_tile_px("jpeg", (3840, 2160))
         == 256
     )
-    clip = _clip(tmp_path, "level0")
-    policy = _policy(tmp_path / "cache")
-    now = autocache.content_key(clip, policy, (320, 240))
-    monkeypatch.setattr(autocache, "AUTO_LEVEL0_TILE_PX", 256)
-    old = autocache.content_key(clip, policy, (320, 240))
-    assert old != now
-    with open_footage(str(clip.with_suffix(".toml")), cache=policy) as uniform:
-        assert isinstance(uniform, TileSource)
-        assert uniform.cache.layout.tile_size(0) == uniform.cache.layout.tile_size(1) == 256
-        pixels = [uniform.frame(1), uniform.frame(1, level=1)]
-    monkeypatch.undo()
-    with open_footage(str(clip.with_suffix(".toml")), cache=policy) as mixed:
-        assert isinstance(mixed, TileSource) and mixed.cache.folder.name == now
-        assert (mixed.cache.layout.tile_size(0), mixed.cache.layout.tile_size(1)) == (128, 256)
-        meta = json.loads((mixed.cache.folder / "tiles" / "meta.json").read_text())
-        assert meta["version"] == 3 and meta["tile_px_level0"] == 128
-        assert np.array_equal(mixed.frame(1), pixels[0])
-        assert np.array_equal(mixed.frame(1, level=1), pixels[1])
-    assert {e.folder.name for e in autocache.list_caches(policy.directory())} == {old, now}
+    uniform, mixed = _older_layout_then_today(tmp_path, monkeypatch, autocache, "AUTO_LEVEL0_TILE_PX", 256)
+    u, m = uniform["layout"], mixed["layout"]
+    assert isinstance(u, TileLayout) and isinstance(m, TileLayout)
+    assert (u.tile_size(0), u.tile_size(1)) == (256, 256) and (m.tile_size(0), m.tile_size(1)) == (128, 256)
+    assert uniform["meta"]["version"] == 2 and "tile_px_level0" not in uniform["meta"]
+    assert mixed["meta"]["version"] == 3 and mixed["meta"]["tile_px_level0"] == 128
