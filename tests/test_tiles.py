@@ -64,7 +64,7 @@ def clip(tmp_path_factory: pytest.TempPathFactory) -> Path:
 def caches(clip: Path, tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     d = tmp_path_factory.mktemp("caches")
     out = {}
-    for codec in ("png", "raw", "jpeg", "yuv420z"):
+    for codec in ("png", "raw", "jpeg", "yuv420z", "yuv420zg"):
         res = ingest_tiles(
             str(clip.with_suffix(".toml")), out_dir=d / codec, codec=codec, show_progress=False
         )
@@ -161,6 +161,70 @@ def test_yuv420z_tiles_render_within_the_stated_psnr_and_decode_each_level(
     finally:
         video.close()
         tiled.close()
+
+
+def test_yuv420zg_holds_yuv420z_pixels_in_fewer_bytes(clip: Path, caches: dict[str, Path]) -> None:
+    """--cache-compact's codec: level 0's tiles gradient-coded (their own magic), every level's pixels (BGR and the
+    renderer's BGRA) and the renders bit-identical to yuv420z's, level 0 in fewer bytes; levels >= 1 the same bytes.
+    A plane buffer whose int32 prefix sums could overflow is stored as yuv420z's, with the same pixels."""
+    from viva_sitl.footage.tiles.format import YUVG_MAX_PLANE_BYTES
+
+    z, zg = open_footage(str(caches["yuv420z"])), open_footage(str(caches["yuv420zg"]))
+    assert isinstance(z, TileSource) and isinstance(zg, TileSource) and zg.cache.codec == "yuv420zg"
+    try:
+        lay = zg.cache.layout
+        sizes = {0: [0, 0], 1: [0, 0]}
+        for f in range(FRAMES):  # the stored bytes (read before any decode: the LRU holds no tile yet)
+            for lv in (0, 1):
+                for ty in range(lay.grid[lv][1]):
+                    for tx in range(lay.grid[lv][0]):
+                        a, b = z.cache._read(f, lv, tx, ty), zg.cache._read(f, lv, tx, ty)
+                        assert isinstance(a, bytes) and isinstance(b, bytes)
+                        assert b[:4] == (b"Y4G1" if lv == 0 else a[:4]) and (lv == 0 or a == b)
+                        sizes[lv][0] += len(a)
+                        sizes[lv][1] += len(b)
+        for f in range(FRAMES):
+            for lv in range(zg.level_count):
+                lw, lh = lay.levels[lv]
+                assert np.array_equal(zg.region(f, lv, 0, 0, lw, lh), z.region(f, lv, 0, 0, lw, lh)), (f, lv)
+        out = np.zeros((301 - 50, 400 - 16, 4), np.uint8)
+        assert np.array_equal(
+            zg.region(2, 0, 16, 50, 400, 301, out=out), z.region(2, 0, 16, 50, 400, 301, out=out.copy())
+        )
+        print(f"level 0: yuv420z {sizes[0][0]} bytes, yuv420zg {sizes[0][1]}")
+        assert sizes[0][1] < 0.9 * sizes[0][0] and sizes[1][1] == sizes[1][0]
+    finally:
+        z.close()
+        zg.close()
+    cam = CameraParams(width_px=200, height_px=150, hfov_deg=HFOV)
+    sims = [Simulator(SimConfig(camera=cam), footage=str(caches[c])) for c in ("yuv420z", "yuv420zg")]
+    try:
+        for k, (pos, att) in enumerate(_poses()):
+            imgs = []
+            for sim in sims:
+                sim.reset(seed=k, pos_ned_m=pos, yaw_rad=att[2])
+                s = replace(sim.state, att_rpy_rad=np.array(att), time_s=0.04 * (k % FRAMES))
+                imgs.append(sim.render(s, wall_time_s=1.0).image_bgr)
+            assert np.array_equal(*imgs), k
+    finally:
+        for sim in sims:
+            sim.close()
+    side = 2400  # 2400 x 3600 plane bytes > YUVG_MAX_PLANE_BYTES
+    assert side * side * 3 // 2 > YUVG_MAX_PLANE_BYTES
+    big = np.ascontiguousarray(cv2.resize(_frame0(clip), (side, side)))
+    data = _encode(big, "yuv420zg", 95, 0)
+    assert data[:4] == b"Y4Z1"
+    assert np.array_equal(
+        _decode(data, "yuv420zg", bgra=True), _decode(_encode(big, "yuv420z", 95, 0), "yuv420z", bgra=True)
+    )
+
+
+def _frame0(clip: Path) -> np.ndarray:
+    video = open_footage(str(clip), altitude_m=ALT_M, hfov_deg=HFOV)
+    try:
+        return np.asarray(video.frame(0))
+    finally:
+        video.close()
 
 
 def test_yuv420z_regions_into_bgra_equal_the_bgr_pixels_whichever_the_lru_holds(

@@ -334,7 +334,9 @@ def _run(args: argparse.Namespace) -> int:
         # run_campaign hands this process's automatic-cache policy to the trials' workers; the flags change it
         # for this campaign only (an in-process caller's own policy is restored after)
         with autocache.using_policy(
-            autocache.from_flags(args.no_cache, args.cache_max_gb, args.tile_cache_dir)
+            autocache.from_flags(
+                args.no_cache, args.cache_max_gb, args.tile_cache_dir, compact=args.cache_compact
+            )
         ):
             camp = run_campaign(
                 spec, pilot, out, n=args.n, seed=args.seed, jobs=args.jobs, backend=args.backend,

@@ -773,7 +773,11 @@ def search_main(args: Any) -> int:
 
     # `--no-cache / --cache-max-gb / --tile-cache-dir` change this process's automatic-cache policy for this search
     # only (its footage boxes, its trials, the failure specs written); its pool's workers are handed it
-    with autocache.using_policy(autocache.from_flags(args.no_cache, args.cache_max_gb, args.tile_cache_dir)):
+    with autocache.using_policy(
+        autocache.from_flags(
+            args.no_cache, args.cache_max_gb, args.tile_cache_dir, compact=args.cache_compact
+        )
+    ):
         return _search_main(args)
 
 

@@ -2,13 +2,14 @@
 
 `open_footage` (and so `viva-sitl run`, the trials' workers, the gym environments and the headless `Simulator`)
 calls `open_video` for every video footage. A video of at least ~4K (`CachePolicy.min_pixels`) gets a tile cache
-(`viva_sitl.footage.tiles`, codec "yuv420z": ~7-9 MiB per 4K frame) in the user cache directory
+(`viva_sitl.footage.tiles`, codec "yuv420z": ~9.5 MiB per 4K frame; with `--cache-compact` "yuv420zg", the same
+pixels in ~6.6 MiB, its level-0 reads slower) in the user cache directory
 (`$XDG_CACHE_HOME/viva-sitl/tiles-auto/<key>/`, else `~/.cache/viva-sitl/...`), built the first time with a
 progress bar and then reused. Smaller videos (the README's examples, the embedded default footage: the synthetic
 field) are opened as before.
 
 - Key: SHA-256 of the file's size and 8 blocks of 1 MiB read at evenly spaced offsets (first and last included), the
-  tile format version, codec and tile sizes (yuv420z up to 4K: 128 px tiles at level 0, `level0_tile_px`). A changed
+  tile format version, codec and tile sizes (yuv420z/zg up to 4K: 128 px tiles at level 0, `level0_tile_px`). A changed
   file gets a new key (its old cache ages out of the LRU); the key does not depend on the file's path, so a renamed
   or copied file reuses its cache.
 - Built once, concurrency-safe: a builder holds an exclusive `flock` on `<key>.lock` and writes `<key>.partial/`;
@@ -96,14 +97,15 @@ def policy() -> CachePolicy:
 
 
 def from_flags(
-    no_cache: bool, max_gb: float, root: Path | None, base: CachePolicy | None = None
+    no_cache: bool, max_gb: float, root: Path | None, base: CachePolicy | None = None, compact: bool = False
 ) -> CachePolicy:
-    """`base` (default: this process's policy) changed by `--no-cache` / `--cache-max-gb` / `--tile-cache-dir`
-    (root None keeps base's folder)."""
+    """`base` (default: this process's policy) changed by `--no-cache` / `--cache-max-gb` / `--tile-cache-dir` /
+    `--cache-compact` (root None keeps base's folder, compact False its codec)."""
     base = _policy if base is None else base
     return replace(
-        base, enabled=base.enabled and not no_cache, max_bytes=int(max_gb * 2**30), root=root or base.root
-    )
+        base, enabled=base.enabled and not no_cache, max_bytes=int(max_gb * 2**30), root=root or base.root,
+        codec=tiles.COMPACT_CODEC if compact else base.codec,
+    )  # fmt: skip
 
 
 @contextlib.contextmanager
@@ -119,7 +121,8 @@ def using_policy(p: CachePolicy) -> Iterator[None]:
 
 def policy_cli_args(p: CachePolicy | None = None) -> list[str]:
     """`viva-sitl run` flags that give a child process policy `p` (default: this process's): what differs from a
-    fresh process's defaults (`--no-cache`, `--cache-max-gb`, `--tile-cache-dir`; `[]` for the defaults)."""
+    fresh process's defaults (`--no-cache`, `--cache-max-gb`, `--tile-cache-dir`, `--cache-compact`; `[]` for the
+    defaults). A codec other than the two the flags name (set through the API) is not passed on."""
     p = _policy if p is None else p
     if not p.enabled:
         return ["--no-cache"]
@@ -128,20 +131,24 @@ def policy_cli_args(p: CachePolicy | None = None) -> list[str]:
         out += ["--cache-max-gb", repr(p.max_bytes / 2**30)]
     if p.root is not None:
         out += ["--tile-cache-dir", str(p.root)]
+    if p.codec == tiles.COMPACT_CODEC:
+        out += ["--cache-compact"]
     return out
 
 
 def _codec_layout(codec: str) -> str:
     """What else than the codec's name decides its bytes: the yuv420z levels stored as zstd and the zstd level
     (caches built when it was level 0 alone, or at zstd level 3, get a new key, so that a cache is rebuilt with the
-    faster layout, not kept)."""
-    if codec != "yuv420z":
+    faster layout, not kept); yuv420zg's gradient tiles' zstd level."""
+    if codec not in tiles.YUVZ_CODECS:
         return ""
     layout = ""
     if tile_format.YUVZ_MAX_LEVEL != 0:
         layout = f" zstd<={tile_format.YUVZ_MAX_LEVEL}@{tile_format.YUVZ_COARSE_MIN_PSNR_DB:g}dB"
     if tile_format.YUVZ_LEVEL != 3:
         layout += f" zstd-level {tile_format.YUVZ_LEVEL}"
+    if codec == "yuv420zg":
+        layout += f" gradient zstd-level {tile_format.YUVG_LEVEL}"
     return layout
 
 
@@ -153,7 +160,7 @@ def _level0_key(codec: str, size_px: tuple[int, int]) -> str:
 
 def level0_tile_px(codec: str, size_px: tuple[int, int]) -> int:
     """The automatic cache's level-0 tile size for `codec` and footage of `size_px` (w, h)."""
-    if codec == "yuv420z" and max(size_px) <= AUTO_LEVEL0_MAX_SIDE_PX:
+    if codec in tiles.YUVZ_CODECS and max(size_px) <= AUTO_LEVEL0_MAX_SIDE_PX:
         return AUTO_LEVEL0_TILE_PX
     return tiles.DEFAULT_TILE_PX
 

@@ -23,7 +23,9 @@ Codecs: "jpeg" (cv2.imencode, quality 95 by default: ~46 dB PSNR per tile on the
 256 px tile), "png" (lossless: renders bit-identical to those from the decoded video, ~4x bigger, ~3x slower to
 decode), "raw" (uncompressed BGR: bit-identical and the cheapest decode, a memory copy; ~10x bigger than jpeg) and
 "yuv420z" (the automatic cache's: level 0 as zstd-compressed planar YUV 4:2:0, ~47 dB and ~4x faster to decode
-than jpeg, coarser levels as jpeg 4:4:4; ~0.7-1.0 byte per footage pixel, see `_encode`).
+than jpeg, coarser levels as jpeg 4:4:4; ~0.7-1.0 byte per footage pixel, see `_encode`), "yuv420zg" (the
+automatic cache's with `--cache-compact`: yuv420z with level 0's planes gradient-coded, the same pixels, ~30 % smaller
+and its level-0 tiles ~1.7x slower to decode, see YUVG_LEVEL).
 Every tile read checks its length and checksum and the decoded shape; any mismatch, a missing pack or level, or a bad
 index raises a one-line `FootageError` naming the cache and the command that rebuilds it: never a wrong image.
 
@@ -47,6 +49,7 @@ from viva_sitl.footage.tiles.format import (
     AUTO_CODEC,
     CODECS,
     COMMIT_FRAMES,
+    COMPACT_CODEC,
     DEFAULT_CODEC,
     DEFAULT_JPEG_QUALITY,
     DEFAULT_TILE_PX,
@@ -57,7 +60,9 @@ from viva_sitl.footage.tiles.format import (
     JPEG_FALLBACK_QUALITIES,
     PACK_BYTES,
     TILES_SUBDIR,
+    YUVG_LEVEL,
     YUVZ_COARSE_MIN_PSNR_DB,
+    YUVZ_CODECS,
     YUVZ_LEVEL,
     YUVZ_MAX_LEVEL,
     TileLayout,
@@ -85,6 +90,7 @@ __all__ = [
     "CACHE_ENV",
     "CODECS",
     "COMMIT_FRAMES",
+    "COMPACT_CODEC",
     "DECODE_THREADS_ENV",
     "DEFAULT_CACHE_BYTES",
     "DEFAULT_CODEC",
@@ -98,6 +104,8 @@ __all__ = [
     "JPEG_FALLBACK_QUALITIES",
     "PACK_BYTES",
     "TILES_SUBDIR",
+    "YUVG_LEVEL",
+    "YUVZ_CODECS",
     "YUVZ_COARSE_MIN_PSNR_DB",
     "YUVZ_LEVEL",
     "YUVZ_MAX_LEVEL",

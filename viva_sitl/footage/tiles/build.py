@@ -28,6 +28,7 @@ from viva_sitl.footage.tiles.format import (
     PACK_BYTES,
     TILES_SUBDIR,
     U8,
+    YUVZ_CODECS,
     TileLayout,
     encode_frame,
     read_progress,
@@ -109,7 +110,7 @@ def build_tiles(
 
     if codec not in CODECS:
         raise FootageError(f"tile codec must be one of {', '.join(CODECS)}, got {codec!r}")
-    if codec in ("jpeg", "yuv420z") and not 1 <= quality <= 100:
+    if codec in ("jpeg", *YUVZ_CODECS) and not 1 <= quality <= 100:
         raise FootageError(f"tile quality must be 1..100, got {quality}")
     if frame_count <= 0:
         raise FootageError("no frames to tile")

@@ -28,8 +28,10 @@ FORMAT_VERSION = 2
 FORMAT_VERSION_LEVEL0 = 3
 DEFAULT_TILE_PX = 256
 DEFAULT_CODEC = "jpeg"
-CODECS = ("jpeg", "png", "raw", "yuv420z")
+CODECS = ("jpeg", "png", "raw", "yuv420z", "yuv420zg")
 AUTO_CODEC = "yuv420z"  # the automatic cache's codec (viva_sitl.footage.autocache)
+COMPACT_CODEC = "yuv420zg"  # the automatic cache's with --cache-compact: yuv420z with level 0 gradient-coded
+YUVZ_CODECS = ("yuv420z", "yuv420zg")
 DEFAULT_JPEG_QUALITY = 95
 # qualities tried, best first, when the size bound would be exceeded at the asked one
 JPEG_FALLBACK_QUALITIES = (95, 92, 90, 85, 80, 75, 70, 60, 50)
@@ -42,6 +44,7 @@ INDEX_DTYPE_V1 = np.dtype(
 _MASK64 = (1 << 64) - 1
 _RAW_MAGIC = b"RAWT"
 _YUVZ_MAGIC = b"Y4Z1"
+_YUVG_MAGIC = b"Y4G1"  # a yuv420zg gradient-coded tile (the reader tells the kinds of tile by their magic)
 # zstd level of the yuv420z codec's zstd tiles: -1, zstd's first fast mode (literals not Huffman-coded), decodes a
 # 256 px tile in ~49 us where levels 1-3 take ~69-72 us, for ~9 % more bytes (4K bench clip: 9.37 MiB per frame vs
 # 8.60 at level 3; bench/results_tiles.md, session 16); readers decode any level
@@ -53,6 +56,15 @@ YUVZ_LEVEL = -1
 # more per 4K frame), as jpeg 4:4:4 elsewhere (sharp chroma edges: 31 dB as 4:2:0 in the tests' synthetic clip)
 YUVZ_MAX_LEVEL = 1
 YUVZ_COARSE_MIN_PSNR_DB = 44.0
+# yuv420zg: yuv420z whose level-0 tiles store each YUV plane byte's difference to its gradient prediction (left + up
+# - up-left, modulo 256), zstd-compressed at YUVG_LEVEL (literals Huffman-coded: the residuals are small numbers, which
+# zstd's fast modes store a byte each). Lossless against yuv420z's planes; undone by one cv2.integral (sums modulo
+# 256 in int32). 4K bench clip: level 0 3.75 MiB per frame instead of 6.48, the cache 6.57 instead of 9.48; a
+# 128 px tile decodes in ~33 us instead of ~19 (bench/results_tiles.md, session 18). Level 1 keeps yuv420z's tiles:
+# the ~0.7 MiB more it would save costs the 300 m view's reads. A plane buffer whose int32 sums could overflow
+# (tiles over 2048 px) is stored as yuv420z's.
+YUVG_LEVEL = 1
+YUVG_MAX_PLANE_BYTES = (1 << 31) // 255
 # full-resolution chroma: 4:2:0 costs 4-7 dB on sharp coarse levels (bench/results_tiles.md) for ~30 % less size
 _JPEG_444 = (cv2.IMWRITE_JPEG_SAMPLING_FACTOR, cv2.IMWRITE_JPEG_SAMPLING_FACTOR_444)
 
@@ -122,10 +134,10 @@ FORMATS: dict[int, tuple[np.dtype[Any], Callable[[bytes], int]]] = {
 }
 
 
-def _encode_yuvz(tile: U8, min_psnr_db: float | None = None) -> bytes | None:
+def _encode_yuvz(tile: U8, min_psnr_db: float | None = None, gradient: bool = False) -> bytes | None:
     """A BGR tile as planar YUV 4:2:0 (I420, OpenCV's BT.601 conversion) compressed with zstd; an odd width or
     height is padded by repeating the last column/row (the header keeps the true size). With `min_psnr_db`: None
-    when the round trip through 4:2:0 is below it."""
+    when the round trip through 4:2:0 is below it. With `gradient`: the planes' gradient residuals (YUVG_LEVEL)."""
     import zstandard
 
     h, w = tile.shape[:2]
@@ -137,8 +149,20 @@ def _encode_yuvz(tile: U8, min_psnr_db: float | None = None) -> bytes | None:
         back = cv2.cvtColor(yuv, cv2.COLOR_YUV2BGR_I420)
         if cv2.PSNR(np.ascontiguousarray(back[:h, :w]), tile) < min_psnr_db:
             return None
-    body = zstandard.ZstdCompressor(level=YUVZ_LEVEL).compress(yuv.tobytes())
-    return _YUVZ_MAGIC + int(w).to_bytes(2, "little") + int(h).to_bytes(2, "little") + body
+    size = int(w).to_bytes(2, "little") + int(h).to_bytes(2, "little")
+    if gradient and yuv.size <= YUVG_MAX_PLANE_BYTES:
+        return (
+            _YUVG_MAGIC + size + zstandard.ZstdCompressor(level=YUVG_LEVEL).compress(_gradient_residuals(yuv))
+        )
+    return _YUVZ_MAGIC + size + zstandard.ZstdCompressor(level=YUVZ_LEVEL).compress(yuv.tobytes())
+
+
+def _gradient_residuals(planes: U8) -> bytes:
+    """Each byte minus its gradient prediction (left + up - up-left; 0 outside the buffer), modulo 256: the second
+    difference whose 2-D prefix sum (cv2.integral) gives the bytes back."""
+    a = planes.astype(np.int16)
+    rows = np.diff(a, axis=0, prepend=np.zeros((1, a.shape[1]), np.int16))
+    return np.diff(rows, axis=1, prepend=np.zeros((a.shape[0], 1), np.int16)).astype(np.uint8).tobytes()
 
 
 _zstd_local = threading.local()
@@ -149,7 +173,8 @@ def _decode_yuvz(data: bytes | memoryview, bgra: bool = False) -> U8 | None:
     the bytes are not one."""
     import zstandard
 
-    if len(data) < 8 or bytes(data[:4]) != _YUVZ_MAGIC:
+    magic = bytes(data[:4])
+    if len(data) < 8 or magic not in (_YUVZ_MAGIC, _YUVG_MAGIC):
         return None
     w = int.from_bytes(data[4:6], "little")
     h = int.from_bytes(data[6:8], "little")
@@ -164,7 +189,10 @@ def _decode_yuvz(data: bytes | memoryview, bgra: bool = False) -> U8 | None:
     if len(raw) != ew * eh * 3 // 2:
         return None
     code = cv2.COLOR_YUV2BGRA_I420 if bgra else cv2.COLOR_YUV2BGR_I420
-    img = cv2.cvtColor(np.frombuffer(raw, np.uint8).reshape(eh * 3 // 2, ew), code)
+    planes = np.frombuffer(raw, np.uint8).reshape(eh * 3 // 2, ew)
+    if magic == _YUVG_MAGIC:  # the residuals' 2-D prefix sums, modulo 256 (int32 -> uint8 keeps the low byte)
+        planes = cv2.integral(planes, sdepth=cv2.CV_32S)[1:, 1:].astype(np.uint8)
+    img = cv2.cvtColor(planes, code)
     return np.asarray(img if (ew, eh) == (w, h) else img[:h, :w], dtype=np.uint8)
 
 
@@ -173,16 +201,17 @@ def _encode(tile: U8, codec: str, quality: int, level: int = 0) -> bytes:
     chroma resolution: ~47 dB, decoded ~4x faster than a JPEG), coarser levels as JPEG 4:4:4 (4:2:0 there costs
     5-10 dB on sharp images: a box-halved level has full-resolution chroma again; bench/results_tiles.md, session
     10) except level-1 tiles whose 4:2:0 round trip keeps YUVZ_COARSE_MIN_PSNR_DB (YUVZ_MAX_LEVEL; the reader
-    tells the two by the tile's magic)."""
+    tells the two by the tile's magic). "yuv420zg" is yuv420z with level 0 gradient-coded (YUVG_LEVEL)."""
     if codec == "raw":
         h, w = tile.shape[:2]
         return _RAW_MAGIC + int(w).to_bytes(2, "little") + int(h).to_bytes(2, "little") + tile.tobytes()
-    if codec == "yuv420z":
-        data = (
-            _encode_yuvz(tile, None if level == 0 else YUVZ_COARSE_MIN_PSNR_DB)
-            if level <= YUVZ_MAX_LEVEL
-            else None
-        )
+    if codec in YUVZ_CODECS:
+        if level == 0:
+            data = _encode_yuvz(tile, None, gradient=codec == "yuv420zg")
+        elif level <= YUVZ_MAX_LEVEL:
+            data = _encode_yuvz(tile, YUVZ_COARSE_MIN_PSNR_DB)
+        else:
+            data = None
         if data is not None:
             return data
         codec = "jpeg"
@@ -206,7 +235,7 @@ def _decode(data: bytes | memoryview, codec: str, bgra: bool = False) -> U8 | No
         if len(data) != 8 + w * h * 3:
             return None
         return np.frombuffer(data, np.uint8, offset=8).reshape(h, w, 3)
-    if codec == "yuv420z" and bytes(data[:4]) == _YUVZ_MAGIC:
+    if codec in YUVZ_CODECS and bytes(data[:4]) in (_YUVZ_MAGIC, _YUVG_MAGIC):
         return _decode_yuvz(data, bgra)
     img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
     return None if img is None else np.asarray(img, dtype=np.uint8)
