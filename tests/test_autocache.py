@@ -114,6 +114,8 @@ def test_no_cache_renders_from_the_video_and_the_cli_flag_reaches_the_simulator(
 
 
 def test_render_cli_caches_4k_footage_unless_no_cache(tmp_path: Path) -> None:
+    """`render` over 4K footage builds the automatic cache (none with --no-cache); with --cache-compact a yuv420zg
+    cache beside it, smaller, rendering the same pixels."""
     clip = _clip(tmp_path / "v", "uhd", frames=2, w=3840, h=2160)
     root = tmp_path / "auto"
     before = autocache.policy()
@@ -128,6 +130,11 @@ def test_render_cli_caches_4k_footage_unless_no_cache(tmp_path: Path) -> None:
         assert mib_per_frame <= 8.0  # the issue's bound (this synthetic clip is smooth: far below it)
         a, b = cv2.imread(str(tmp_path / "plain.png")), cv2.imread(str(tmp_path / "cached.png"))
         assert _psnr(a, b) >= MIN_PSNR_DB
+        assert cli_main(["render", *common, "--cache-compact", "-o", str(tmp_path / "compact.png")]) == 0
+        caches = {e.codec: e for e in autocache.list_caches(root)}
+        assert set(caches) == {"yuv420z", "yuv420zg"} and caches["yuv420z"].key == entry.key
+        assert caches["yuv420zg"].bytes < caches["yuv420z"].bytes
+        assert np.array_equal(cv2.imread(str(tmp_path / "compact.png")), b)
     finally:
         autocache.set_policy(before)
 
@@ -289,18 +296,24 @@ def test_trials_run_hands_the_cache_flags_to_its_spawned_workers(tmp_path: Path)
         tmp_path / "mine"
     )  # min_pixels=1: handed to the workers, so the small clip counts as heavy
     with autocache.using_policy(mine):
-        for flags, root in (([], tmp_path / "flagged"), (["--no-cache"], tmp_path / "off")):
-            out = tmp_path / f"out{len(flags)}"
+        for flags, root in (
+            ([], tmp_path / "flagged"), (["--no-cache"], tmp_path / "off"), (["--cache-compact"], tmp_path / "small")
+        ):  # fmt: skip
+            out = tmp_path / f"out-{root.name}"
             argv = ["run", str(spec), "--pilot", "descend", "--jobs", "1", "-o", str(out), "--no-progress"]
             assert trials_main([*argv, "--tile-cache-dir", str(root), *flags]) == 0
             (row,) = json.loads((out / "results.json").read_text())["rows"]
             assert row["end"] == "landed", row
             built = autocache.list_caches(root) if root.exists() else []
-            assert [e.source for e in built] == ([] if flags else [str(clip.resolve())])
+            assert [(e.source, e.codec) for e in built] == (
+                [] if flags == ["--no-cache"] else [(str(clip.resolve()), "yuv420zg" if flags else "yuv420z")]
+            )
         assert autocache.policy() == mine
     assert not (tmp_path / "mine").exists()
     assert autocache.policy_cli_args(mine) == ["--tile-cache-dir", str(tmp_path / "mine")]
     assert autocache.policy_cli_args(autocache.from_flags(True, 32.0, None, mine)) == ["--no-cache"]
+    compact = autocache.from_flags(False, 32.0, None, mine, compact=True)
+    assert compact.codec == "yuv420zg" and autocache.policy_cli_args(compact)[-1] == "--cache-compact"
     assert autocache.from_flags(False, 2.0, None, mine).max_bytes == 2 << 30
 
 
@@ -410,6 +423,10 @@ def test_a_cache_of_another_zstd_level_is_not_reused(tmp_path: Path, monkeypatch
 
     level3, fast = _older_layout_then_today(tmp_path, monkeypatch, tile_format, "YUVZ_LEVEL", 3)
     assert fast["bytes"] != level3["bytes"]
+    # the default codec's key text is the one its caches were built under (--cache-compact's codec added no word
+    # to it, so no existing cache is rebuilt); the compact codec's differs
+    assert autocache._codec_layout("yuv420z") == " zstd<=1@44dB zstd-level -1"
+    assert autocache._codec_layout("yuv420zg") == " zstd<=1@44dB zstd-level -1 gradient zstd-level 1"
 
 
 def test_the_automatic_cache_has_128_px_tiles_at_level_0_and_rebuilds_a_uniform_one(

@@ -247,13 +247,10 @@ def apply_tile_environment() -> None:
 
 
 def apply_cache_args(args: argparse.Namespace) -> None:
-    from viva_sitl.footage.autocache import CachePolicy, set_policy
+    from viva_sitl.footage.autocache import CachePolicy, from_flags, set_policy
 
-    set_policy(
-        CachePolicy(
-            enabled=not args.no_cache, max_bytes=int(args.cache_max_gb * 2**30), root=args.tile_cache_dir
-        )
-    )
+    base = CachePolicy()  # a fresh process's defaults, changed by the flags
+    set_policy(from_flags(args.no_cache, args.cache_max_gb, args.tile_cache_dir, base, args.cache_compact))
 
 
 def main(argv: list[str] | None = None) -> int:

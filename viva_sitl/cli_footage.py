@@ -260,10 +260,10 @@ def _cmd_cache(args: argparse.Namespace, cache_dir: Path) -> int:
         if not entries:
             print(f"no automatic tile cache in {root}")
             return 0
-        print("KEY           SIZE       FRAMES  LAST USED         SOURCE")
+        print("KEY           SIZE       FRAMES  CODEC     LAST USED         SOURCE")
         for e in reversed(entries):  # most recently used first
             used = time.strftime("%Y-%m-%d %H:%M", time.localtime(e.last_used))
-            print(f"{e.key[:12]}  {_human(e.bytes):>9}  {e.frames:>6}  {used}  {e.source}")
+            print(f"{e.key[:12]}  {_human(e.bytes):>9}  {e.frames:>6}  {e.codec:<8}  {used}  {e.source}")
         print(f"{len(entries)} caches, {_human(sum(e.bytes for e in entries))} in {root}")
         return 0
     removed = [e for e in entries if autocache.remove(root, e)]

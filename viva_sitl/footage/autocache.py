@@ -240,6 +240,9 @@ class CacheEntry:
     last_used: float
     source: str
     frames: int
+    codec: str = (
+        "?"  # yuv420z, or yuv420zg (--cache-compact); "?" for a cache whose source.json is unreadable
+    )
 
 
 def list_caches(root: Path) -> list[CacheEntry]:
@@ -257,7 +260,7 @@ def list_caches(root: Path) -> list[CacheEntry]:
         out.append(
             CacheEntry(
                 d.name, d, _dir_bytes(d), _last_used(d),
-                str(info.get("source", "?")), int(info.get("frames", 0)),
+                str(info.get("source", "?")), int(info.get("frames", 0)), str(info.get("codec", "?")),
             )
         )  # fmt: skip
     return sorted(out, key=lambda e: e.last_used)
