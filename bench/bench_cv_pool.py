@@ -5,7 +5,8 @@ Configurations (`--configs`):
   sleep   what a user gets: viva_sitl sets OPENCV_THREAD_POOL_ACTIVE_WAIT_* = 0 when imported (viva_sitl.opencv_pool)
   spin    OpenCV's own defaults (the variables set to them: PAUSE_LIMIT 16, WORKER 2000, MAIN 10000)
   cv1     cv2.setNumThreads(1): no OpenCV pool at all
-each with 1 and 2 tile decode threads (`--decode-threads`). Steps as bench_tiles.py's (bench_core.Ours: 1/30 s of
+each with 1 and 2 tile decode threads (`--decode-threads`), over the automatic cache of each of `--codecs` (yuv420z,
+the default; yuv420zg, what `--cache-compact` builds: both caches sit in the same folder under their own keys). Steps as bench_tiles.py's (bench_core.Ours: 1/30 s of
 physics + one 640x480 render per step, hovering at --z), the clip by path under the automatic cache, the decoded-tile
 LRU at `--tile-cache-mb` (default 2 MiB: every frame decoded, as over a long clip). Prints one line per
 configuration and a markdown table; `--json` keeps the figures. `--ref-python PY ...`: viva-safeland interpreters
@@ -15,6 +16,7 @@ in one process, each configuration here runs alone in its process, as a user's p
 
     python bench/bench_cv_pool.py --z 50 300 --rounds 5
     python bench/bench_cv_pool.py --configs sleep --ref-python /tmp/ref020/bin/python /tmp/ref025/bin/python
+    python bench/bench_cv_pool.py --configs sleep --decode-threads 2 --codecs yuv420z yuv420zg --ref-python ...
 """
 
 from __future__ import annotations
@@ -40,6 +42,7 @@ SPIN = {  # OpenCV's defaults (modules/core/src/parallel_impl.cpp)
     "OPENCV_THREAD_POOL_ACTIVE_WAIT_MAIN": "10000",
 }
 CONFIGS = ("sleep", "spin", "cv1")
+CACHE_CODECS = ("yuv420z", "yuv420zg")
 
 
 def _step_args(z: float, steps: int) -> argparse.Namespace:
@@ -57,7 +60,9 @@ def child(args: argparse.Namespace) -> None:
     if args.child == "cv1":
         cv2.setNumThreads(1)
     clip = core.make_clip(args.cache_dir, args.frames)
-    autocache.set_policy(autocache.CachePolicy(root=args.cache_dir / "tiles-auto", show_progress=False))
+    autocache.set_policy(
+        autocache.CachePolicy(root=args.cache_dir / "tiles-auto", show_progress=False, codec=args.codecs[0])
+    )
     core.apply_tile_environment()  # the decode threads and LRU the parent put in this process's environment
     ours = core.Ours(clip, _step_args(args.z[0], args.steps), paper=False, render=True)
     try:
@@ -75,6 +80,9 @@ def main() -> int:
     ap.add_argument("--z", type=float, nargs="+", default=[50.0, 300.0])
     ap.add_argument("--configs", nargs="+", choices=CONFIGS, default=list(CONFIGS))
     ap.add_argument("--decode-threads", type=int, nargs="+", default=[2, 1])
+    ap.add_argument("--codecs", nargs="+", choices=CACHE_CODECS, default=[CACHE_CODECS[0]],
+                    help="the automatic cache's codec: yuv420z (the default) and/or yuv420zg (--cache-compact); "
+                         "each configuration is run over each")  # fmt: skip
     ap.add_argument("--rounds", type=int, default=5)
     ap.add_argument("--steps", type=int, default=120)
     ap.add_argument("--frames", type=int, default=60)
@@ -111,8 +119,9 @@ def _run(args: argparse.Namespace) -> int:
         try:
             for cfg in args.configs:
                 for threads in args.decode_threads:
-                    _time_refs(refs, ref_runs)
-                    rows.append(_config(args, base, z, cfg, threads))
+                    for codec in args.codecs:
+                        _time_refs(refs, ref_runs)
+                        rows.append(_config(args, base, z, cfg, threads, codec))
             _time_refs(refs, ref_runs)
         finally:
             for ref in refs.values():
@@ -156,21 +165,22 @@ def _references(args: argparse.Namespace, z: float) -> dict[str, core.Reference]
 
 
 def _config(
-    args: argparse.Namespace, base: dict[str, str], z: float, cfg: str, threads: int
+    args: argparse.Namespace, base: dict[str, str], z: float, cfg: str, threads: int, codec: str
 ) -> dict[str, Any]:
-    """One configuration's child process at z: its medians."""
+    """One configuration's child process at z over the automatic cache of `codec`: its medians."""
     env = dict(base, VIVA_SITL_TILE_DECODE_THREADS=str(threads), **(SPIN if cfg == "spin" else {}))
     cmd = [sys.executable, __file__, "--child", cfg, "--z", f"{z:g}", "--rounds", str(args.rounds),
-           "--steps", str(args.steps), "--frames", str(args.frames), "--cache-dir", str(args.cache_dir)]  # fmt: skip
+           "--steps", str(args.steps), "--frames", str(args.frames), "--cache-dir", str(args.cache_dir),
+           "--codecs", codec]  # fmt: skip
     t0 = time.perf_counter()
     out = subprocess.run(cmd, env=env, capture_output=True, text=True)
     if out.returncode != 0:
         print(out.stderr, file=sys.stderr)
         raise SystemExit(f"bench_cv_pool: the {cfg} child at {z:g} m failed (exit {out.returncode})")
     res = json.loads(out.stdout.strip().splitlines()[-1])
-    row = {"z": z, "config": cfg, "decode_threads": threads, **res,
+    row = {"z": z, "config": cfg, "decode_threads": threads, "codec": codec, **res,
            "load": os.getloadavg()[0], "wall_s": time.perf_counter() - t0}  # fmt: skip
-    print(f"z {z:g} m  {cfg:5s} decode {threads}: {res['steps_per_s']:7.1f} steps/s  "
+    print(f"z {z:g} m  {cfg:5s} decode {threads} {codec:8s}: {res['steps_per_s']:7.1f} steps/s  "
           f"{res['cpu_ms_per_step']:.2f} ms CPU/step  (load {row['load']:.2f})", file=sys.stderr)  # fmt: skip
     return row
 
@@ -178,11 +188,11 @@ def _config(
 def _table(rows: list[dict[str, Any]], refs: list[dict[str, Any]]) -> None:
     """The markdown table: each configuration, and its wall / CPU ratio to each reference at its z."""
     names = list(dict.fromkeys(r["reference"] for r in refs))
-    head = "| z | OpenCV pool | decode threads | steps/s | CPU ms/step |"
+    head = "| z | OpenCV pool | decode threads | cache | steps/s | CPU ms/step |"
     head += "".join(f" vs viva-safeland {n} wall / CPU |" for n in names)
-    print(head + "\n|---|---|---:|---:|---:|" + "---|" * len(names))
+    print(head + "\n|---|---|---:|---|---:|---:|" + "---|" * len(names))
     for r in rows:
-        line = (f"| {r['z']:g} m | {r['config']} | {r['decode_threads']} | {r['steps_per_s']:.1f} | "
+        line = (f"| {r['z']:g} m | {r['config']} | {r['decode_threads']} | {r['codec']} | {r['steps_per_s']:.1f} | "
                 f"{r['cpu_ms_per_step']:.2f} |")  # fmt: skip
         for n in names:
             ref = next(x for x in refs if x["reference"] == n and x["z"] == r["z"])
@@ -191,7 +201,7 @@ def _table(rows: list[dict[str, Any]], refs: list[dict[str, Any]]) -> None:
         print(line)
     for ref in refs:
         print(
-            f"| {ref['z']:g} m | viva-safeland {ref['reference']} | | {ref['steps_per_s']:.1f} | {ref['cpu_ms_per_step']:.2f} |"
+            f"| {ref['z']:g} m | viva-safeland {ref['reference']} | | | {ref['steps_per_s']:.1f} | {ref['cpu_ms_per_step']:.2f} |"
             + " |" * len(names)
         )
 

@@ -157,7 +157,7 @@ def _encode_yuvz(tile: U8, min_psnr_db: float | None = None, gradient: bool = Fa
     return _YUVZ_MAGIC + size + zstandard.ZstdCompressor(level=YUVZ_LEVEL).compress(yuv.tobytes())
 
 
-def _gradient_residuals(planes: U8) -> bytes:
+def _gradient_residuals(planes: NDArray[Any]) -> bytes:
     """Each byte minus its gradient prediction (left + up - up-left; 0 outside the buffer), modulo 256: the second
     difference whose 2-D prefix sum (cv2.integral) gives the bytes back."""
     a = planes.astype(np.int16)
