@@ -18,7 +18,8 @@ One trial = a 60 s (sim) emergency landing: air start at 30 m over the clip, "la
         terminates (z <= 2 m) or 60 s (1800 steps) pass: J such loops in J processes at once.
 Variants of ours (--variants): "default" opens the clip by path as `trials run` does for a new user: the automatic
 tile cache (viva_sitl.footage.autocache, default settings; only its folder is --auto-cache-dir, not ~/.cache), built
-once before the rounds, its build time reported apart ("auto_cache"); "video" flies over the H.264 clip itself
+once before the rounds, its build time reported apart ("auto_cache"); "compact" the same with `--cache-compact`'s
+codec (yuv420zg: level 0 gradient-coded, the same pixels in a smaller cache; "auto_cache_compact"); "video" flies over the H.264 clip itself
 (`--no-cache`); "tiles" over its `footage ingest --tiles` cache (jpeg q95, bench_tiles.make_tiles; a trial's footage
 may be any tile cache folder); "tiles-raw" over its raw (uncompressed, lossless: renders bit-identical to the
 video's) tile cache. --ref-python-also: a second reference (e.g. viva-safeland 0.2.5 beside 0.2.0), same rounds.
@@ -48,6 +49,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -240,8 +242,8 @@ def build_auto_cache(clip: Path, policy: Any) -> dict[str, Any]:
     t0 = time.perf_counter()
     open_footage(clip, cache=policy).close()
     build_s = time.perf_counter() - t0
-    entry = max((e for e in autocache.list_caches(policy.directory()) if e.source == str(clip.resolve())),
-                key=lambda e: e.last_used)  # fmt: skip
+    entry = max((e for e in autocache.list_caches(policy.directory())
+                 if e.source == str(clip.resolve()) and e.codec == policy.codec), key=lambda e: e.last_used)  # fmt: skip
     return {"open_or_build_s": build_s, "mib": entry.bytes / 2**20, "frames": entry.frames,
             "mib_per_frame": entry.bytes / 2**20 / entry.frames, "folder": str(entry.folder)}  # fmt: skip
 
@@ -275,7 +277,7 @@ def main() -> int:
         "--variants",
         nargs="+",
         default=["default", "video"],
-        choices=["default", "video", "tiles", "tiles-raw"],
+        choices=["default", "compact", "video", "tiles", "tiles-raw"],
     )
     ap.add_argument(
         "--ref-python-also",
@@ -293,16 +295,18 @@ def main() -> int:
     os.environ[READ_ENV] = args.read
     apply_tile_cache(ap, args)
     from bench.bench_tiles import make_tiles
-    from viva_sitl.footage import autocache
+    from viva_sitl.footage import autocache, tiles
 
     clip = make_clip(DEFAULT_CACHE, args.frames)
-    footage = {"video": clip, "default": clip}
+    footage = {"video": clip, "default": clip, "compact": clip}
     policies: dict[str, Any] = {v: None for v in args.variants}
     policies["video"] = autocache.CachePolicy(enabled=False)  # the video itself (`--no-cache`)
     policies["default"] = autocache.CachePolicy(root=args.auto_cache_dir, show_progress=False)
     # nothing this bench opens writes to the user's ~/.cache: the process's policy is the default one, in its folder
     autocache.set_policy(policies["default"])
+    policies["compact"] = replace(policies["default"], codec=tiles.COMPACT_CODEC)  # `--cache-compact`
     auto_cache = build_auto_cache(clip, policies["default"]) if "default" in args.variants else None
+    compact = build_auto_cache(clip, policies["compact"]) if "compact" in args.variants else None
     refs = {"ref": args.ref_python, **{f"ref_{ref_version(py)}": py for py in args.ref_python_also}}
     if "tiles" in args.variants:
         footage["tiles"] = make_tiles(clip, "jpeg")
@@ -312,6 +316,7 @@ def main() -> int:
         "machine": f"{platform.node()} {platform.machine()} {os.cpu_count()} cpus, {platform.python_version()}",
         "load_avg_before": os.getloadavg(), "clip": str(clip), "jobs": args.jobs, "read": args.read,
         "tile_cache_mb": args.tile_cache_mb, "ref_version": ref_version(args.ref_python), "auto_cache": auto_cache,
+        "auto_cache_compact": compact,
         "rounds": [],
     }  # fmt: skip
     for _ in range(args.rounds):
