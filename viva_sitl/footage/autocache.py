@@ -240,9 +240,7 @@ class CacheEntry:
     last_used: float
     source: str
     frames: int
-    codec: str = (
-        "?"  # yuv420z, or yuv420zg (--cache-compact); "?" for a cache whose source.json is unreadable
-    )
+    codec: str  # yuv420z, yuv420zg (--cache-compact); "?" where source.json is unreadable
 
 
 def list_caches(root: Path) -> list[CacheEntry]:
