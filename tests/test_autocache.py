@@ -426,7 +426,9 @@ def test_a_cache_of_another_zstd_level_is_not_reused(tmp_path: Path, monkeypatch
     # the default codec's key text is the one its caches were built under (--cache-compact's codec added no word
     # to it, so no existing cache is rebuilt); the compact codec's differs
     assert autocache._codec_layout("yuv420z") == " zstd<=1@44dB zstd-level -1"
-    assert autocache._codec_layout("yuv420zg") == " zstd<=1@44dB zstd-level -1 gradient zstd-level 1"
+    assert (
+        autocache._codec_layout("yuv420zg") == " zstd<=1@44dB zstd-level -1 gradient zstd-level 1 min-match 7"
+    )
 
 
 def test_the_automatic_cache_has_128_px_tiles_at_level_0_and_rebuilds_a_uniform_one(

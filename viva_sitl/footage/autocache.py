@@ -148,7 +148,7 @@ def _codec_layout(codec: str) -> str:
     if tile_format.YUVZ_LEVEL != 3:
         layout += f" zstd-level {tile_format.YUVZ_LEVEL}"
     if codec == "yuv420zg":
-        layout += f" gradient zstd-level {tile_format.YUVG_LEVEL}"
+        layout += f" gradient zstd-level {tile_format.YUVG_LEVEL} min-match {tile_format.YUVG_MIN_MATCH}"
     return layout
 
 

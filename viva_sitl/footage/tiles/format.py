@@ -58,12 +58,14 @@ YUVZ_MAX_LEVEL = 1
 YUVZ_COARSE_MIN_PSNR_DB = 44.0
 # yuv420zg: yuv420z whose level-0 tiles store each YUV plane byte's difference to its gradient prediction (left + up
 # - up-left, modulo 256), zstd-compressed at YUVG_LEVEL (literals Huffman-coded: the residuals are small numbers, which
-# zstd's fast modes store a byte each). Lossless against yuv420z's planes; undone by one cv2.integral (sums modulo
+# zstd's fast modes store a byte each) with matches of at least YUVG_MIN_MATCH bytes (residuals repeat little: fewer
+# short matches, ~1 % fewer bytes and ~8 % faster to decompress than level 1's default 6, as fast to compress). Lossless against yuv420z's planes; undone by one cv2.integral (sums modulo
 # 256 in int32). 4K bench clip: level 0 3.75 MiB per frame instead of 6.48, the cache 6.57 instead of 9.48; a
 # 128 px tile decodes in ~33 us instead of ~19 (bench/results_tiles.md, session 18). Level 1 keeps yuv420z's tiles:
 # the ~0.7 MiB more it would save costs the 300 m view's reads. A plane buffer whose int32 sums could overflow
 # (tiles over 2048 px) is stored as yuv420z's.
 YUVG_LEVEL = 1
+YUVG_MIN_MATCH = 7
 YUVG_MAX_PLANE_BYTES = (1 << 31) // 255
 # full-resolution chroma: 4:2:0 costs 4-7 dB on sharp coarse levels (bench/results_tiles.md) for ~30 % less size
 _JPEG_444 = (cv2.IMWRITE_JPEG_SAMPLING_FACTOR, cv2.IMWRITE_JPEG_SAMPLING_FACTOR_444)
@@ -151,9 +153,9 @@ def _encode_yuvz(tile: U8, min_psnr_db: float | None = None, gradient: bool = Fa
             return None
     size = int(w).to_bytes(2, "little") + int(h).to_bytes(2, "little")
     if gradient and yuv.size <= YUVG_MAX_PLANE_BYTES:
-        return (
-            _YUVG_MAGIC + size + zstandard.ZstdCompressor(level=YUVG_LEVEL).compress(_gradient_residuals(yuv))
-        )
+        params = zstandard.ZstdCompressionParameters.from_level(YUVG_LEVEL, min_match=YUVG_MIN_MATCH)
+        body = zstandard.ZstdCompressor(compression_params=params).compress(_gradient_residuals(yuv))
+        return _YUVG_MAGIC + size + body
     return _YUVZ_MAGIC + size + zstandard.ZstdCompressor(level=YUVZ_LEVEL).compress(yuv.tobytes())
 
 
