@@ -105,7 +105,7 @@ def build_parser() -> argparse.ArgumentParser:
         "(lossless and the fastest: ~2x jpeg's full steps/s at 50 m over 4K, for ~7x its size on disk: ~32 MiB "
         "per 4K frame) or yuv420z (the automatic cache's: zstd YUV 4:2:0 level 0, ~3x faster to decode than jpeg, "
         "jpeg coarse levels; ~9.5 MiB per 4K frame) or yuv420zg (yuv420z with level 0 gradient-coded: the same "
-        "pixels, ~6.6 MiB per 4K frame, level-0 reads ~1.4x slower)",
+        "pixels, ~6.5 MiB per 4K frame, level-0 reads ~1.3x slower)",
     )  # fmt: skip
     ing.add_argument(
         "--tile-quality", type=int, default=tiles.DEFAULT_JPEG_QUALITY, help="jpeg quality 1-100"

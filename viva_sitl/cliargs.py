@@ -151,9 +151,9 @@ def add_cache_args(p: argparse.ArgumentParser) -> None:
     )  # fmt: skip
     g.add_argument(
         "--cache-compact", action="store_true",
-        help="build the cache of footage up to 4K ~30 %% smaller (level 0 gradient-coded, the same pixels: ~6.6 "
-        "MiB per 4K frame), its level-0 reads ~1.4x slower (~10 %% fewer steps/s at 50 m); an existing cache of "
-        "the other kind is not reused",
+        help="build the cache ~30 %% smaller (full-resolution tiles gradient-coded, the same pixels: ~6.5 MiB per "
+        "4K frame, ~20 per 8K frame), its full-resolution reads ~1.3x slower (6-13 %% fewer steps/s at 50 m over "
+        "4K); an existing cache of the other kind is not reused",
     )  # fmt: skip
     g.add_argument(
         "--tile-cache-dir", type=Path, help="where they go (default $XDG_CACHE_HOME/viva-sitl/tiles-auto)"

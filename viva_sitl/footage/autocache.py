@@ -3,7 +3,7 @@
 `open_footage` (and so `viva-sitl run`, the trials' workers, the gym environments and the headless `Simulator`)
 calls `open_video` for every video footage. A video of at least ~4K (`CachePolicy.min_pixels`) gets a tile cache
 (`viva_sitl.footage.tiles`, codec "yuv420z": ~9.5 MiB per 4K frame; with `--cache-compact` "yuv420zg", the same
-pixels in ~6.6 MiB, its level-0 reads slower) in the user cache directory
+pixels in ~6.5 MiB, its level-0 reads ~1.3x slower) in the user cache directory
 (`$XDG_CACHE_HOME/viva-sitl/tiles-auto/<key>/`, else `~/.cache/viva-sitl/...`), built the first time with a
 progress bar and then reused. Smaller videos (the README's examples, the embedded default footage: the synthetic
 field) are opened as before.

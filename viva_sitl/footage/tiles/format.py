@@ -59,11 +59,12 @@ YUVZ_COARSE_MIN_PSNR_DB = 44.0
 # yuv420zg: yuv420z whose level-0 tiles store each YUV plane byte's difference to its gradient prediction (left + up
 # - up-left, modulo 256), zstd-compressed at YUVG_LEVEL (literals Huffman-coded: the residuals are small numbers, which
 # zstd's fast modes store a byte each) with matches of at least YUVG_MIN_MATCH bytes (residuals repeat little: fewer
-# short matches, ~1 % fewer bytes and ~8 % faster to decompress than level 1's default 6, as fast to compress). Lossless against yuv420z's planes; undone by one cv2.integral (sums modulo
-# 256 in int32). 4K bench clip: level 0 3.75 MiB per frame instead of 6.48, the cache 6.57 instead of 9.48; a
-# 128 px tile decodes in ~33 us instead of ~19 (bench/results_tiles.md, session 18). Level 1 keeps yuv420z's tiles:
-# the ~0.7 MiB more it would save costs the 300 m view's reads. A plane buffer whose int32 sums could overflow
-# (tiles over 2048 px) is stored as yuv420z's.
+# short matches, ~1 % fewer bytes and ~8 % faster to decompress than level 1's default 6, as fast to compress).
+# Lossless against yuv420z's planes; undone by one cv2.integral (sums modulo 256 in int32). 4K bench clip: the cache
+# 6.52 MiB per frame instead of 9.48 (level 0 ~3.7 instead of 6.5), 8K 20.1 instead of 31.8; a 128 px tile decodes
+# in ~31 us instead of ~19, a 50 m region ~1.3x slower (bench/results_tiles.md, session 18). Level 1 keeps
+# yuv420z's tiles: the ~0.7 MiB more it would save costs the 300 m view's reads. A plane buffer whose int32 sums
+# could overflow (tiles over 2048 px) is stored as yuv420z's.
 YUVG_LEVEL = 1
 YUVG_MIN_MATCH = 7
 YUVG_MAX_PLANE_BYTES = (1 << 31) // 255
