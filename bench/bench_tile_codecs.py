@@ -15,7 +15,8 @@ Codecs are the ones `viva_sitl.footage.tiles` can write, plus lossless zstd on B
 `--yuvz-levels 3 -5 -50`: yuv420z again with its zstd tiles written at each of these zstd levels (the cache uses
 YUVZ_LEVEL; negative levels are zstd's fast modes: larger, decoded faster), the points between yuv420z and raw on
 the size/speed curve. "level 0 into BGRA" is what the renderer's region read costs per level-0 tile (yuv420z
-converts YUV straight to BGRA; the others decode BGR, then a BGR -> BGRA pass).
+converts YUV straight to BGRA; the others decode BGR, then a BGR -> BGRA pass). yuv420zg (`--cache-compact`'s): yuv420z
+with level 0's planes gradient-coded (left + up - up-left residuals, zstd level 1, undone by cv2.integral).
 
     .venv/bin/python bench/bench_tile_codecs.py --yuvz-levels 3 1 -1 -5 -20 -50
 """
@@ -122,7 +123,7 @@ def main() -> int:
     args = ap.parse_args()
     cv2.setNumThreads(1)
     codecs: list[tuple[str, int, int | None]] = [("raw", 0, None), ("jpeg", 95, None), ("png", 0, None),
-                                                 ("yuv420z", 95, None)]  # fmt: skip
+                                                 ("yuv420z", 95, None), ("yuv420zg", 95, None)]  # fmt: skip
     codecs += [("yuv420z", 95, lv) for lv in args.yuvz_levels]
     lines = [
         f"machine: {core.machine()}",
@@ -143,6 +144,8 @@ def main() -> int:
             label = f"{codec} q{q}" if codec != "raw" and codec != "png" else codec
             if codec == "yuv420z":
                 label += f", zstd level {default_level if zlevel is None else zlevel}"
+            elif codec == "yuv420zg":  # level 0 gradient-coded (--cache-compact), level 1 as yuv420z's
+                label += f", level 0 gradient + zstd level {tiles_format.YUVG_LEVEL}"
             lines.append(
                 f"| {name} | {label} | {m['bytes_per_px']:.3f} | {m['mib_per_4k_frame']:.1f} | "
                 f"{m['decode_us_l0']:.0f} | {m['decode_us_l0_bgra']:.0f} | {m['decode_us_coarse']:.0f} | "
