@@ -25,6 +25,7 @@ import json
 import math
 import os
 import platform
+import shlex
 import signal
 import statistics
 import subprocess
@@ -257,6 +258,10 @@ def main() -> int:
     )
     ap.add_argument("--clip-frames", type=int, default=60, help="frames of the generated 4K clip")
     ap.add_argument("--json", type=Path, help="write the figures here as JSON")
+    ap.add_argument(
+        "--sitl-cache-args", default="",
+        help="automatic-cache flags for the viva-sitl run child, e.g. \"--cache-compact --tile-cache-dir DIR\"",
+    )  # fmt: skip
     add_tile_cache_arg(ap)  # the viva-sitl run child inherits it
     ap.add_argument("--client", nargs=2, metavar=("SDP", "OUT"), help=argparse.SUPPRESS)
     args = ap.parse_args()
@@ -285,6 +290,7 @@ def main() -> int:
         )
         video_port, _, mjpeg_port, _ = free_udp_ports(4)
         extra = ["--config", str(cfg)] + (["--mjpeg-port", str(mjpeg_port)] if args.mjpeg else [])
+        extra += shlex.split(args.sitl_cache_args)
         sitl = SitlProcess(
             workdir=tmp, footage=footage, speed=args.speed, video_port=video_port,
             frame_socket_port=free_tcp_port(), extra_args=extra, ready_timeout_s=180.0, name="bench",
