@@ -211,20 +211,13 @@ def test_yuv420zg_holds_yuv420z_pixels_in_fewer_bytes(clip: Path, caches: dict[s
             sim.close()
     side = 2400  # 2400 x 3600 plane bytes > YUVG_MAX_PLANE_BYTES
     assert side * side * 3 // 2 > YUVG_MAX_PLANE_BYTES
-    big = np.ascontiguousarray(cv2.resize(_frame0(clip), (side, side)))
+    (frame0,) = _frames(clip, 1)
+    big = np.ascontiguousarray(cv2.resize(frame0, (side, side)))
     data = _encode(big, "yuv420zg", 95, 0)
     assert data[:4] == b"Y4Z1"
     assert np.array_equal(
         _decode(data, "yuv420zg", bgra=True), _decode(_encode(big, "yuv420z", 95, 0), "yuv420z", bgra=True)
     )
-
-
-def _frame0(clip: Path) -> np.ndarray:
-    video = open_footage(str(clip), altitude_m=ALT_M, hfov_deg=HFOV)
-    try:
-        return np.asarray(video.frame(0))
-    finally:
-        video.close()
 
 
 def test_yuv420z_regions_into_bgra_equal_the_bgr_pixels_whichever_the_lru_holds(

@@ -45,6 +45,7 @@ _MASK64 = (1 << 64) - 1
 _RAW_MAGIC = b"RAWT"
 _YUVZ_MAGIC = b"Y4Z1"
 _YUVG_MAGIC = b"Y4G1"  # a yuv420zg gradient-coded tile (the reader tells the kinds of tile by their magic)
+_YUVZ_MAGICS = (_YUVZ_MAGIC, _YUVG_MAGIC)  # the tiles _decode_yuvz reads
 # zstd level of the yuv420z codec's zstd tiles: -1, zstd's first fast mode (literals not Huffman-coded), decodes a
 # 256 px tile in ~49 us where levels 1-3 take ~69-72 us, for ~9 % more bytes (4K bench clip: 9.37 MiB per frame vs
 # 8.60 at level 3; bench/results_tiles.md, session 16); readers decode any level
@@ -177,7 +178,7 @@ def _decode_yuvz(data: bytes | memoryview, bgra: bool = False) -> U8 | None:
     import zstandard
 
     magic = bytes(data[:4])
-    if len(data) < 8 or magic not in (_YUVZ_MAGIC, _YUVG_MAGIC):
+    if len(data) < 8 or magic not in _YUVZ_MAGICS:
         return None
     w = int.from_bytes(data[4:6], "little")
     h = int.from_bytes(data[6:8], "little")
@@ -238,7 +239,7 @@ def _decode(data: bytes | memoryview, codec: str, bgra: bool = False) -> U8 | No
         if len(data) != 8 + w * h * 3:
             return None
         return np.frombuffer(data, np.uint8, offset=8).reshape(h, w, 3)
-    if codec in YUVZ_CODECS and bytes(data[:4]) in (_YUVZ_MAGIC, _YUVG_MAGIC):
+    if codec in YUVZ_CODECS and bytes(data[:4]) in _YUVZ_MAGICS:
         return _decode_yuvz(data, bgra)
     img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
     return None if img is None else np.asarray(img, dtype=np.uint8)
