@@ -240,6 +240,14 @@ def stream_figures(
 
 
 # ---------------------------------------------------------------------------------------------------- main
+def _shell_words(text: str) -> list[str]:
+    """--sitl-cache-args: split as a shell would; a bad quote is argparse's one-line error."""
+    try:
+        return shlex.split(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
 def main() -> int:
     from bench_core import add_tile_cache_arg, apply_tile_cache
 
@@ -259,7 +267,7 @@ def main() -> int:
     ap.add_argument("--clip-frames", type=int, default=60, help="frames of the generated 4K clip")
     ap.add_argument("--json", type=Path, help="write the figures here as JSON")
     ap.add_argument(
-        "--sitl-cache-args", default="",
+        "--sitl-cache-args", type=_shell_words, default=[],
         help="automatic-cache flags for the viva-sitl run child, e.g. \"--cache-compact --tile-cache-dir DIR\"",
     )  # fmt: skip
     add_tile_cache_arg(ap)  # the viva-sitl run child inherits it
@@ -290,7 +298,7 @@ def main() -> int:
         )
         video_port, _, mjpeg_port, _ = free_udp_ports(4)
         extra = ["--config", str(cfg)] + (["--mjpeg-port", str(mjpeg_port)] if args.mjpeg else [])
-        extra += shlex.split(args.sitl_cache_args)
+        extra += args.sitl_cache_args
         sitl = SitlProcess(
             workdir=tmp, footage=footage, speed=args.speed, video_port=video_port,
             frame_socket_port=free_tcp_port(), extra_args=extra, ready_timeout_s=180.0, name="bench",
