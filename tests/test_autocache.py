@@ -245,6 +245,41 @@ def test_a_corrupt_or_truncated_cache_is_rebuilt_with_one_line(
         assert pack.read_bytes() == good  # rebuilt identically
 
 
+def test_a_build_stopped_by_ctrl_c_says_so_in_one_line_and_the_next_open_resumes_it(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """Ctrl-C during the automatic build (here: KeyboardInterrupt from the frame source after 6 of 10 frames): one
+    warning line with the frames kept, the interrupt goes on to the caller, only `<key>.partial/` is on disk (nothing
+    reads it), and the next open resumes from the committed frames and finishes."""
+    clip = _clip(tmp_path / "v", "stopped", frames=10)
+    pol = _policy(tmp_path / "auto", codec="yuv420zg")
+    with open_footage(str(clip), cache=CachePolicy(enabled=False)) as video:
+        n, size, fps = video.frame_count, video.frame_size_px, video.fps
+        frames = [video.frame(i) for i in range(n)]
+
+    def stopped() -> Any:
+        yield from frames[:6]
+        raise KeyboardInterrupt
+
+    caplog.clear()
+    with (
+        caplog.at_level(logging.WARNING, logger="viva_sitl.footage.autocache"),
+        pytest.raises(KeyboardInterrupt),
+    ):
+        autocache.ensure_cache(clip, stopped, n, size, fps, pol, "stopped")
+    lines = [r.getMessage() for r in caplog.records if "interrupted" in r.getMessage()]
+    assert lines == ["tile cache of stopped: build interrupted after 4 of 10 frames; the next run resumes it"]
+    assert autocache.list_caches(pol.directory()) == []
+    assert [p.suffix for p in pol.directory().iterdir() if p.is_dir()] == [".partial"]
+    with (
+        open_footage(str(clip), cache=pol) as src,
+        open_footage(str(clip), cache=_policy(tmp_path / "b")) as fresh,
+    ):
+        assert isinstance(src, TileSource) and src.frame_count == 10 and src.cache.codec == "yuv420zg"
+        assert all(np.array_equal(src.frame(i), fresh.frame(i)) for i in range(10))  # the same pixels
+    assert [p.suffix for p in pol.directory().iterdir() if p.is_dir()] == [""]
+
+
 def test_the_size_bound_evicts_the_least_recently_used_cache(tmp_path: Path) -> None:
     # three videos of different content (3, 4 and 5 frames)
     clips = [_clip(tmp_path / n, n, frames=k) for n, k in (("a", 3), ("b", 4), ("c", 5))]

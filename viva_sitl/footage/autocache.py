@@ -354,6 +354,11 @@ def ensure_cache(path: Path, frames: object, frame_count: int, size_px: tuple[in
                 level0_tile_px=level0_tile_px(policy.codec, size_px), max_bytes=policy.max_bytes,
                 source_id=key, show_progress=policy.show_progress, desc=f"tile cache {what}",
             )  # fmt: skip
+        except KeyboardInterrupt:  # Ctrl-C: say what is kept (build_tiles committed whole batches of frames)
+            done = tiles.read_progress(partial / tiles.TILES_SUBDIR).get("frames_done", 0)
+            log.warning("tile cache of %s: build interrupted after %s of %d frames; the next run resumes it",
+                        what, done, frame_count)  # fmt: skip
+            raise
         except FootageError as exc:
             if "would take" not in str(exc) and "reached --max-size" not in str(exc):
                 raise
