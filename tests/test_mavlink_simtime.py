@@ -9,6 +9,7 @@ Sim time is read from the messages themselves (ATTITUDE.time_boot_ms is the vehi
 from __future__ import annotations
 
 import contextlib
+import gc
 import json
 import os
 import signal
@@ -61,17 +62,26 @@ def _vehicle_process(client: MavClient, speed: float) -> Iterator[subprocess.Pop
 
 
 def _collect_sim_span(client: MavClient, span_ms: int, wall_timeout_s: float) -> list[tuple[float, Any]]:
-    """Poll until ATTITUDE covers `span_ms` of sim time; return (wall, msg) of everything read meanwhile."""
+    """Poll until ATTITUDE covers `span_ms` of sim time; return (wall, msg) of everything read meanwhile. The wall
+    times are arrival times: Python's garbage collector is off meanwhile, so that a collection of this test process
+    (large by the end of a full suite) cannot hold the first reads back and shorten the wall span (a suspected cause of
+    sim/wall 5.6-5.7 against 4 +- 0.8 at --speed 4, twice in full suites, never with the file alone)."""
     start = len(client.received)
     deadline = time.monotonic() + wall_timeout_s
     first: int | None = None
-    while time.monotonic() < deadline:
-        client.poll(0.05)
-        att = [m for _, m in client.received[start:] if m.get_type() == "ATTITUDE"]
-        if att:
-            first = int(att[0].time_boot_ms) if first is None else first
-            if int(att[-1].time_boot_ms) - first >= span_ms:
-                return client.received[start:]
+    gc_was_on = gc.isenabled()
+    gc.disable()
+    try:
+        while time.monotonic() < deadline:
+            client.poll(0.05)
+            att = [m for _, m in client.received[start:] if m.get_type() == "ATTITUDE"]
+            if att:
+                first = int(att[0].time_boot_ms) if first is None else first
+                if int(att[-1].time_boot_ms) - first >= span_ms:
+                    return client.received[start:]
+    finally:
+        if gc_was_on:
+            gc.enable()
     pytest.fail(f"ATTITUDE did not cover {span_ms} ms of sim time within {wall_timeout_s} s wall")
 
 
