@@ -22,6 +22,7 @@ from viva_sitl.footage.tiles import (
     DECODE_THREADS_ENV,
     DEFAULT_CACHE_BYTES,
     DEFAULT_DECODE_THREADS,
+    READ_AHEAD_ENV,
     TileCache,
     TileSettings,
     TileSource,
@@ -57,7 +58,10 @@ def test_settings_from_a_mapping() -> None:
     assert TileSettings.from_environ({CACHE_ENV: " ", DECODE_THREADS_ENV: ""}) == TileSettings()
     got = TileSettings.from_environ({CACHE_ENV: "0.5", DECODE_THREADS_ENV: "1", "UNRELATED": "x"})
     assert got == TileSettings(cache_bytes=1 << 19, decode_threads=1)
-    for var, bad in [(CACHE_ENV, "0"), (CACHE_ENV, "nan"), (CACHE_ENV, "lots"), (DECODE_THREADS_ENV, "1.5")]:
+    assert TileSettings.from_environ({READ_AHEAD_ENV: "0"}) == TileSettings(read_ahead=False)
+    assert TileSettings.from_environ({READ_AHEAD_ENV: "1"}) == TileSettings() == TileSettings(read_ahead=True)
+    for var, bad in [(CACHE_ENV, "0"), (CACHE_ENV, "nan"), (CACHE_ENV, "lots"), (DECODE_THREADS_ENV, "1.5"),
+                     (READ_AHEAD_ENV, "2"), (READ_AHEAD_ENV, "yes")]:  # fmt: skip
         with pytest.raises(FootageError, match=f"\\${var}={bad!r}: give ") as err:
             TileSettings.from_environ({var: bad})
         assert "\n" not in str(err.value)
@@ -66,6 +70,7 @@ def test_settings_from_a_mapping() -> None:
         TileSettings(),
         TileSettings(cache_bytes=3 << 20, decode_threads=1),
         TileSettings(cache_bytes=12345),
+        TileSettings(decode_threads=2, read_ahead=False),
     ):
         assert TileSettings.from_environ(s.to_environ()) == s
     assert (

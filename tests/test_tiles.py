@@ -9,6 +9,8 @@ import math
 import os
 import shutil
 import sys
+import threading
+import time
 from collections.abc import Iterator
 from dataclasses import replace
 from pathlib import Path
@@ -29,6 +31,7 @@ from viva_sitl.footage.tiles import (
     INDEX_DTYPE,
     INDEX_DTYPE_V1,
     YUVZ_COARSE_MIN_PSNR_DB,
+    TileCache,
     TileSettings,
     TileSource,
     _decode,
@@ -250,6 +253,116 @@ def test_yuv420z_regions_into_bgra_equal_the_bgr_pixels_whichever_the_lru_holds(
     # the zstd path was the one taken (level 0 of yuv420z is always zstd 4:2:0)
     assert _decode(_encode(np.zeros((16, 16, 3), np.uint8), "yuv420z", 95, 0), "yuv420z", bgra=True).shape == (
         16, 16, 4)  # fmt: skip
+
+
+# a view's footprint in level-0 pixels (yawed: its bounding box holds tiles the quad filter leaves out)
+_QUAD = np.array([[300.0, 120.0], [760.0, 250.0], [640.0, 610.0], [180.0, 480.0]])
+_BOX = (150, 100, 790, 630)  # level 0: x0, y0, x1, y1 around it
+
+
+def _ahead_region(cache: TileCache, frame: int) -> np.ndarray:
+    x0, y0, x1, y1 = _BOX
+    out = np.zeros((y1 - y0, x1 - x0, 4), np.uint8)
+    return cache.region(frame, 0, x0, y0, x1, y1, out, _QUAD, 4.0).copy()
+
+
+def _worker_done(cache: TileCache) -> None:
+    """Wait for the read-ahead the last region started (if any) to finish."""
+    if cache._worker_job is not None:
+        cache._worker_job.result(timeout=60)
+
+
+@pytest.mark.parametrize("codec", ["yuv420z", "yuv420zg"])
+def test_read_ahead_decodes_the_next_frame_while_the_caller_works_and_changes_no_pixel(
+    caches: dict[str, Path], codec: str
+) -> None:
+    """Regions read frame after frame (a flight over a clip) have the next frame's tiles decoded on the decode
+    worker in between: once the sequence is steady (two equal steps), every tile of the next region comes from it,
+    and the pixels are those of a cache read without read-ahead, frame by frame, through the clip's wrap to frame 0,
+    and after a seek backwards (the job for the frame that did not come is dropped)."""
+    ahead = TileCache(caches[codec], TileSettings(cache_bytes=1, decode_threads=2))
+    plain = TileCache(caches[codec], TileSettings(cache_bytes=1, decode_threads=2, read_ahead=False))
+    try:
+        n_tiles = len(ahead.tiles_under(0, *_BOX, _QUAD, 4.0))
+        assert 0 < n_tiles < len(ahead.tiles_under(0, *_BOX))
+        frames = [*range(FRAMES), 0, 1, 4, 5]  # in sequence through the wrap, then a seek (1 -> 4), then on
+        for k, frame in enumerate(frames):
+            before = ahead.tiles_ahead
+            got = _ahead_region(ahead, frame)
+            assert np.array_equal(got, _ahead_region(plain, frame)), (codec, k, frame)
+            # from the 4th read of a steady sequence on (and not right after the seek): all from the read-ahead
+            from_ahead = ahead.tiles_ahead - before
+            if 3 <= k <= 7:
+                assert from_ahead == n_tiles, (k, frame, from_ahead)
+            elif k in (0, 1, 2, 8):
+                assert from_ahead == 0, (k, frame, from_ahead)
+            _worker_done(ahead)  # the caller's "rest of the step" outlasts the worker's decode here
+        assert plain.ahead_jobs == 0 and plain.tiles_ahead == 0
+        assert ahead.ahead_jobs >= 6
+        # a seek drops the job: 4 came after 1 (the job was for 2); the step 3 then planned nothing
+        assert ahead._seq[0] == (5, 1)
+    finally:
+        ahead.close()
+        plain.close()
+
+
+def test_read_ahead_that_runs_late_pauses_and_a_bad_tile_still_fails_its_own_region(
+    caches: dict[str, Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A worker that has not decoded half the tiles by the time the region comes (no core for it) is a strike;
+    AHEAD_STRIKES in a row pause read-ahead for AHEAD_PAUSE_FRAMES regions. The region decodes the rest itself,
+    never wrong pixels. A tile whose bytes are damaged fails the region of its frame with the cache's one-line error,
+    whether or not a worker read it ahead."""
+    from viva_sitl.footage.tiles import read as tile_read
+
+    real = tile_read.TileCache._work_ahead
+
+    def idle_worker(self: TileCache, job: tile_read._ReadAhead) -> None:
+        if threading.current_thread() is threading.main_thread():
+            real(self, job)  # the region's own share
+            return
+        while job.todo:  # the worker gets no core: it waits until the region has taken its queue
+            time.sleep(0.001)
+
+    monkeypatch.setattr(tile_read.TileCache, "_work_ahead", idle_worker)
+    cache = TileCache(caches["yuv420z"], TileSettings(cache_bytes=1, decode_threads=2))
+    plain = TileCache(caches["yuv420z"], TileSettings(cache_bytes=1, decode_threads=1))
+    try:
+        jobs = []
+        for k in range(2 + tile_read.AHEAD_STRIKES + 3):
+            frame = k % FRAMES
+            assert np.array_equal(_ahead_region(cache, frame), _ahead_region(plain, frame)), k
+            jobs.append(cache.ahead_jobs)  # (no wait for the worker: it waits for the next region)
+        # a job after each read from the 3rd on, until the AHEAD_STRIKES-th late one paused them
+        strikes = tile_read.AHEAD_STRIKES
+        assert jobs == [0, 0, *range(1, strikes + 1), *[strikes] * 3], jobs
+        assert cache._ahead_paused[0] == tile_read.AHEAD_PAUSE_FRAMES - 3
+    finally:
+        cache.close()
+        plain.close()
+    monkeypatch.undo()
+    # a damaged tile of frame 3, read ahead by a working worker: frame 3's region fails, in one line
+    bad = _copy(caches["yuv420z"], tmp_path / "bad")
+    victim = TileCache(bad)
+    t = victim.layout.tile_index(0, *victim.tiles_under(0, *_BOX, _QUAD, 4.0)[0])
+    pack, _length, offset, _check = victim.index[3 * victim.layout.tiles_per_frame + t].item()[:4]
+    victim.close()
+    with open(bad / "tiles" / f"pack-{pack:03d}.bin", "r+b") as f:
+        f.seek(offset + 9)
+        byte = f.read(1)
+        f.seek(offset + 9)
+        f.write(bytes([byte[0] ^ 0xFF]))
+    cache = TileCache(bad, TileSettings(cache_bytes=1, decode_threads=2))
+    try:
+        for frame in range(3):
+            _ahead_region(cache, frame)
+            _worker_done(cache)
+        assert cache.ahead_jobs == 1  # frame 3's tiles were read ahead
+        with pytest.raises(FootageError, match=r"frame 3 level 0 tile .*checksum mismatch") as err:
+            _ahead_region(cache, 3)
+        assert "\n" not in str(err.value)
+    finally:
+        cache.close()
 
 
 def test_yuv420z_level_1_tiles_are_4_2_0_only_where_that_keeps_the_bound() -> None:

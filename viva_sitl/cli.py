@@ -239,8 +239,9 @@ def _cmd_render(args: argparse.Namespace) -> int:
 
 
 def apply_tile_environment() -> None:
-    """The process's tile settings from the documented $VIVA_SITL_TILE_CACHE_MB / $VIVA_SITL_TILE_DECODE_THREADS,
-    read here on the top floor (the footage layer reads no environment); a bad value is one FootageError line."""
+    """The process's tile settings from the documented $VIVA_SITL_TILE_CACHE_MB / $VIVA_SITL_TILE_DECODE_THREADS /
+    $VIVA_SITL_TILE_READ_AHEAD, read here on the top floor (the footage layer reads no environment); a bad value is
+    one FootageError line."""
     from viva_sitl.footage.tiles import TileSettings, set_process_settings
 
     set_process_settings(TileSettings.from_environ(os.environ))

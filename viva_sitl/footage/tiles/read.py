@@ -7,9 +7,9 @@ from __future__ import annotations
 import json
 import os
 import threading
-from collections import OrderedDict
+from collections import OrderedDict, deque
 from collections.abc import Callable
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
@@ -34,6 +34,27 @@ from viva_sitl.footage.tiles.settings import TileSettings
 
 _TILE_CAPABILITIES = FootageCapabilities(region=RegionRead.TILES)  # raw tiles: copied, not decoded
 _DECODED_TILE_CAPABILITIES = FootageCapabilities(region=RegionRead.TILES, region_decodes=True)
+
+
+# read-ahead: a job that ran late (fewer than half its tiles done by the worker when the region came) AHEAD_STRIKES
+# times in a row pauses read-ahead for AHEAD_PAUSE_FRAMES regions of that level, then it is tried again. Why: a worker
+# that gets no core between two regions (2 cores, a slow codec beside OpenCV's 2-thread warp) only delays the warp's
+# threads and the region that waits for it
+AHEAD_STRIKES = 3
+AHEAD_PAUSE_FRAMES = 240
+
+
+class _ReadAhead:
+    """The tiles of one (frame, level) decoded on the pool's worker before a region asks for them; the region that
+    comes takes the rest of the queue (`todo`) itself. Each decoded tile lands in `done` (out of the LRU until the
+    region uses it: a small LRU would evict them first)."""
+
+    def __init__(self, frame: int, level: int, tiles: list[tuple[int, int]], bgra: bool) -> None:
+        self.frame, self.level, self.bgra = frame, level, bgra
+        self.total = len(tiles)
+        self.todo: deque[tuple[int, int]] = deque(tiles)
+        self.done: dict[tuple[int, int], U8] = {}
+        self.future: Future[None] | None = None
 
 
 class TileCache:
@@ -108,6 +129,18 @@ class TileCache:
         self._lock = threading.Lock()
         self.tiles_decoded = 0  # statistics
         self.tile_hits = 0
+        self.tiles_ahead = 0  # tiles a region found decoded ahead (read-ahead)
+        self.ahead_jobs = 0
+        # read-ahead (with a decode pool): per level, the last frame a region read and the step to it; two equal
+        # steps in a row (frames read in sequence, as a flight over a clip does) start decoding the same tiles of
+        # the next frame on the pool's worker while the caller warps, simulates, encodes
+        self._read_ahead = base.read_ahead
+        self._seq: dict[int, tuple[int, int]] = {}
+        self._ahead: dict[int, _ReadAhead] = {}
+        self._ahead_strikes: dict[int, int] = {}
+        self._ahead_paused: dict[int, int] = {}
+        self._worker_job: Future[None] | None = None
+        self._ahead_lock = threading.Lock()
         # the decoders release the GIL: misses of one region are decoded in parallel, by the caller's thread and
         # threads - 1 workers, each every n-th of them (one hand-off per worker and region, not per tile)
         self._threads = threads
@@ -161,9 +194,12 @@ class TileCache:
             raise self._error(f"frame {frame} level {level} tile ({tx}, {ty}): checksum mismatch")
         return data
 
-    def _decoded(self, frame: int, level: int, tx: int, ty: int, data: bytes, bgra: bool = False) -> U8:
+    def _decoded(
+        self, frame: int, level: int, tx: int, ty: int, data: bytes, bgra: bool = False, keep: bool = True
+    ) -> U8:
         """Decode checked bytes (BGR, or BGRA where the codec converts to it in the same pass and `bgra` asks),
-        check the size, keep the tile in the LRU."""
+        check the size, keep the tile in the LRU (unless `keep` is False: a read-ahead's tile, kept by the region
+        that uses it)."""
         img = _decode(data, self.codec, bgra)
         lw, lh = self.layout.levels[level]
         ts = self.layout.tile_size(level)
@@ -172,16 +208,91 @@ class TileCache:
             raise self._error(f"frame {frame} level {level} tile ({tx}, {ty}): does not decode to a "
                               f"{want[1]}x{want[0]} image")  # fmt: skip
         img.setflags(write=False)
-        key = (frame, self.layout.tile_index(level, tx, ty))
         with self._lock:
             self.tiles_decoded += 1
+        if keep:
+            self._keep(frame, level, tx, ty, img)
+        return img
+
+    def _keep(self, frame: int, level: int, tx: int, ty: int, img: U8) -> None:
+        """Put a decoded tile in the LRU (evicting the least recently used beyond the cap)."""
+        key = (frame, self.layout.tile_index(level, tx, ty))
+        with self._lock:
             if key not in self._lru:
                 self._lru[key] = img
                 self._lru_bytes += img.nbytes
             while self._lru_bytes > self.cache_bytes and len(self._lru) > 1:
                 _, old = self._lru.popitem(last=False)
                 self._lru_bytes -= old.nbytes
-        return img
+
+    def _work_ahead(self, job: _ReadAhead) -> None:
+        """Decode the job's tiles until its queue is empty (the worker, then the region that came). A tile that
+        fails is left out: the region that asks for it reads it again and raises there, with its message."""
+        while True:
+            try:
+                tx, ty = job.todo.popleft()
+            except IndexError:
+                return
+            try:
+                got = self._read(job.frame, job.level, tx, ty)
+                img = got if isinstance(got, np.ndarray) else self._decoded(
+                    job.frame, job.level, tx, ty, got, job.bgra, keep=False
+                )  # fmt: skip
+            except Exception:  # noqa: BLE001, S112 - reported by the region that reads the tile
+                continue
+            job.done[(tx, ty)] = img
+
+    def _take_ahead(self, frame: int, level: int, bgra: bool) -> dict[tuple[int, int], U8]:
+        """The tiles of (frame, level) decoded ahead, or {}: the caller decodes the job's tiles no worker has
+        started, then waits for the one in progress. A job for another frame is dropped, unless this read repeats
+        the level's last frame (two renders of one footage frame: the next one is still to come)."""
+        with self._ahead_lock:
+            job = self._ahead.get(level)
+            if job is None:
+                return {}
+            if job.frame != frame or job.bgra != bgra:
+                if self._seq.get(level, (None, 0))[0] != frame:
+                    del self._ahead[level]
+                    job.todo.clear()  # the worker stops after its tile
+                return {}
+            del self._ahead[level]
+            late = 2 * len(job.done) < job.total
+            strikes = self._ahead_strikes.get(level, 0) + 1 if late else 0
+            if strikes >= AHEAD_STRIKES:
+                self._ahead_paused[level] = AHEAD_PAUSE_FRAMES
+                strikes = 0
+            self._ahead_strikes[level] = strikes
+        self._work_ahead(job)
+        if job.future is not None:
+            job.future.result()
+        return job.done
+
+    def _plan_ahead(self, frame: int, level: int, tiles: list[tuple[int, int]], bgra: bool) -> None:
+        """After a region of `frame`: when the level's frames come in steady steps, start decoding `tiles` of the
+        next frame of the sequence on the pool's worker, while the caller warps, simulates, encodes."""
+        if self._pool is None or not self._read_ahead or not tiles:
+            return
+        with self._ahead_lock:
+            last, stride = self._seq.get(level, (None, 0))
+            if last == frame:
+                return  # the same frame again: its successor is planned (or the sequence is not steady)
+            step = 0 if last is None else (frame - last) % self.frame_count
+            self._seq[level] = (frame, step)
+            paused = self._ahead_paused.get(level, 0)
+            if paused:
+                self._ahead_paused[level] = paused - 1
+                return
+            if step == 0 or step != stride or level in self._ahead or not self._packs:
+                return
+            job = _ReadAhead((frame + step) % self.frame_count, level, tiles, bgra)
+            self._ahead[level] = job
+            job.future = self._pool.submit(self._work_ahead, job)
+            self._worker_job = job.future
+            self.ahead_jobs += 1
+
+    def _worker_busy(self) -> bool:
+        """The pool's worker is on a read-ahead (one that was taken may still be on its last tile)."""
+        return self._worker_job is not None and not self._worker_job.done()
 
     def tile(self, frame: int, level: int, tx: int, ty: int) -> U8:
         """The decoded tile as BGR (read-only), checked against its length, checksum and expected size."""
@@ -257,14 +368,24 @@ class TileCache:
         bgra = out.shape[2] == 4
         ts = self.layout.tile_size(level)
         todo = self.tiles_under(level, x0, y0, x1, y1, quad, margin_px)
-        got = [self._read(frame, level, tx, ty) for tx, ty in todo]
+        ahead = self._take_ahead(frame, level, bgra)
+        got: list[U8 | bytes] = []
+        for tx, ty in todo:
+            early = ahead.get((tx, ty))
+            if early is None:
+                got.append(self._read(frame, level, tx, ty))
+            else:
+                self._keep(frame, level, tx, ty, early)
+                self.tiles_ahead += 1
+                got.append(early)
         misses = [i for i, g in enumerate(got) if not isinstance(g, np.ndarray)]
 
         def decode(share: list[int]) -> None:
             for i in share:
                 got[i] = self._decoded(frame, level, *todo[i], got[i], bgra)  # type: ignore[arg-type]
 
-        if len(misses) > 1 and self._pool is not None:
+        # misses shared with the pool's worker, unless it is still on a read-ahead's tile (then the caller's alone)
+        if len(misses) > 1 and self._pool is not None and not self._worker_busy():
             n = min(self._threads, len(misses))
             shares = [misses[k::n] for k in range(n)]  # interleaved: a region may mix zstd and jpeg tiles
             futures = [self._pool.submit(decode, share) for share in shares[1:]]
@@ -284,9 +405,14 @@ class TileCache:
                 dst[...] = part
             else:
                 cv2.cvtColor(part, cv2.COLOR_BGR2BGRA if bgra else cv2.COLOR_BGRA2BGR, dst=dst)
+        self._plan_ahead(frame, level, todo, bgra)
         return out
 
     def close(self) -> None:
+        with self._ahead_lock:
+            for job in self._ahead.values():
+                job.todo.clear()
+            self._ahead.clear()
         if self._pool is not None:
             self._pool.shutdown(wait=True)
             self._pool = None

@@ -1,10 +1,10 @@
-"""How a process reads tile caches: `TileSettings` (decoded-tile LRU cap, decode threads), passed to `TileCache` /
+"""How a process reads tile caches: `TileSettings` (decoded-tile LRU cap, decode threads, read-ahead), passed to `TileCache` /
 `TileSource` / `open_footage` as an argument.
 
 Nothing in the footage layer reads the environment. The documented environment variables
-($VIVA_SITL_TILE_CACHE_MB, $VIVA_SITL_TILE_DECODE_THREADS: a process and the trial workers it starts; the trials'
-pool sets the decode threads per worker, 1 when the workers fill the cores, where handing ~2 misses per frame to a
-pool costs more than it overlaps, unless the user chose them) are read on the top floor: the `viva-sitl` commands,
+($VIVA_SITL_TILE_CACHE_MB, $VIVA_SITL_TILE_DECODE_THREADS, $VIVA_SITL_TILE_READ_AHEAD: a process and the trial
+workers it starts; the trials' pool sets the decode threads per worker, 1 when the workers fill the cores, where
+handing ~2 misses per frame to a pool costs more than it overlaps, unless the user chose them) are read on the top floor: the `viva-sitl` commands,
 the gym environments and the benches call `TileSettings.from_environ(os.environ)` once and make the result the
 process's settings (`set_process_settings`, what `open_footage` uses when it is given none, as
 `autocache.set_policy`) or pass it as an argument; the campaign hands it to its workers as an argument, and an
@@ -25,6 +25,7 @@ DEFAULT_CACHE_BYTES = 256 << 20  # decoded-tile LRU cap
 DEFAULT_DECODE_THREADS = 2
 CACHE_ENV = "VIVA_SITL_TILE_CACHE_MB"
 DECODE_THREADS_ENV = "VIVA_SITL_TILE_DECODE_THREADS"
+READ_AHEAD_ENV = "VIVA_SITL_TILE_READ_AHEAD"
 
 
 def _parse(
@@ -52,10 +53,13 @@ def _parse(
 class TileSettings:
     """Settings of a tile cache reader: `cache_bytes` caps the LRU of decoded tiles, `decode_threads` decode one
     region's missing tiles (the caller's thread and decode_threads - 1 workers; 1: the caller's alone; None: not
-    chosen, DEFAULT_DECODE_THREADS, or the cores a trial worker is left: `or_threads`)."""
+    chosen, DEFAULT_DECODE_THREADS, or the cores a trial worker is left: `or_threads`), `read_ahead`: with a
+    decode worker (decode_threads >= 2), regions read frame after frame have the next frame's tiles decoded on the
+    worker while the caller does the rest of its step (TileCache; the same pixels either way)."""
 
     cache_bytes: int = DEFAULT_CACHE_BYTES
     decode_threads: int | None = None
+    read_ahead: bool = True
 
     @property
     def threads(self) -> int:
@@ -72,20 +76,25 @@ class TileSettings:
         env = {CACHE_ENV: repr(self.cache_bytes / (1 << 20))}
         if self.decode_threads is not None:
             env[DECODE_THREADS_ENV] = str(self.decode_threads)
+        if not self.read_ahead:
+            env[READ_AHEAD_ENV] = "0"
         return env
 
     @staticmethod
     def from_environ(environ: Mapping[str, str]) -> TileSettings:
-        """The settings `environ` gives ($VIVA_SITL_TILE_CACHE_MB in MiB > 0, $VIVA_SITL_TILE_DECODE_THREADS >= 1;
-        the defaults where unset or blank); FootageError (one line naming the variable) for a bad value."""
+        """The settings `environ` gives ($VIVA_SITL_TILE_CACHE_MB in MiB > 0, $VIVA_SITL_TILE_DECODE_THREADS >= 1,
+        $VIVA_SITL_TILE_READ_AHEAD 0 or 1; the defaults where unset or blank); FootageError (one line naming the
+        variable) for a bad value."""
         mb = _parse(
             environ, CACHE_ENV, float, lambda v: math.isfinite(v) and v > 0,
             "the decoded-tile cache size in MiB (> 0)",
         )  # fmt: skip
         n = _parse(environ, DECODE_THREADS_ENV, int, lambda v: v >= 1, "a whole number of threads >= 1")
+        ahead = _parse(environ, READ_AHEAD_ENV, int, lambda v: v in (0, 1), "0 (off) or 1 (on)")
         return TileSettings(
             cache_bytes=DEFAULT_CACHE_BYTES if mb is None else max(1, int(mb * (1 << 20))),
             decode_threads=None if n is None else int(n),
+            read_ahead=ahead != 0,
         )
 
 
