@@ -6,7 +6,9 @@ Configurations (`--configs`):
   spin    OpenCV's own defaults (the variables set to them: PAUSE_LIMIT 16, WORKER 2000, MAIN 10000)
   cv1     cv2.setNumThreads(1): no OpenCV pool at all
 each with 1 and 2 tile decode threads (`--decode-threads`), over the automatic cache of each of `--codecs` (yuv420z,
-the default; yuv420zg, what `--cache-compact` builds: both caches sit in the same folder under their own keys). Steps as bench_tiles.py's (bench_core.Ours: 1/30 s of
+the default; yuv420zg, what `--cache-compact` builds: both caches sit in the same folder under their own keys), with
+the tile read-ahead on and/or off (`--read-ahead on off`: $VIVA_SITL_TILE_READ_AHEAD in the child's environment;
+default on, as a user gets it). Steps as bench_tiles.py's (bench_core.Ours: 1/30 s of
 physics + one 640x480 render per step, hovering at --z), the clip by path under the automatic cache, the decoded-tile
 LRU at `--tile-cache-mb` (default 2 MiB: every frame decoded, as over a long clip). Prints one line per
 configuration and a markdown table; `--json` keeps the figures. `--ref-python PY ...`: viva-safeland interpreters
@@ -17,6 +19,7 @@ in one process, each configuration here runs alone in its process, as a user's p
     python bench/bench_cv_pool.py --z 50 300 --rounds 5
     python bench/bench_cv_pool.py --configs sleep --ref-python /tmp/ref020/bin/python /tmp/ref025/bin/python
     python bench/bench_cv_pool.py --configs sleep --decode-threads 2 --codecs yuv420z yuv420zg --ref-python ...
+    python bench/bench_cv_pool.py --configs sleep --decode-threads 2 --read-ahead on off --ref-python ...
 """
 
 from __future__ import annotations
@@ -83,6 +86,9 @@ def main() -> int:
     ap.add_argument("--codecs", nargs="+", choices=CACHE_CODECS, default=[CACHE_CODECS[0]],
                     help="the automatic cache's codec: yuv420z (the default) and/or yuv420zg (--cache-compact); "
                          "each configuration is run over each")  # fmt: skip
+    ap.add_argument("--read-ahead", nargs="+", choices=("on", "off"), default=["on"],
+                    help="the tile read-ahead (TileSettings.read_ahead) on and/or off; each configuration is run "
+                         "with each")  # fmt: skip
     ap.add_argument("--rounds", type=int, default=5)
     ap.add_argument("--steps", type=int, default=120)
     ap.add_argument("--frames", type=int, default=60)
@@ -120,8 +126,9 @@ def _run(args: argparse.Namespace) -> int:
             for cfg in args.configs:
                 for threads in args.decode_threads:
                     for codec in args.codecs:
-                        _time_refs(refs, ref_runs)
-                        rows.append(_config(args, base, z, cfg, threads, codec))
+                        for ahead in args.read_ahead:
+                            _time_refs(refs, ref_runs)
+                            rows.append(_config(args, base, z, cfg, threads, codec, ahead))
             _time_refs(refs, ref_runs)
         finally:
             for ref in refs.values():
@@ -165,10 +172,18 @@ def _references(args: argparse.Namespace, z: float) -> dict[str, core.Reference]
 
 
 def _config(
-    args: argparse.Namespace, base: dict[str, str], z: float, cfg: str, threads: int, codec: str
+    args: argparse.Namespace,
+    base: dict[str, str],
+    z: float,
+    cfg: str,
+    threads: int,
+    codec: str,
+    ahead: str = "on",
 ) -> dict[str, Any]:
-    """One configuration's child process at z over the automatic cache of `codec`: its medians."""
-    env = dict(base, VIVA_SITL_TILE_DECODE_THREADS=str(threads), **(SPIN if cfg == "spin" else {}))
+    """One configuration's child process at z over the automatic cache of `codec`, read-ahead `ahead`: its
+    medians."""
+    env = dict(base, VIVA_SITL_TILE_DECODE_THREADS=str(threads), VIVA_SITL_TILE_READ_AHEAD=str(int(ahead == "on")),
+               **(SPIN if cfg == "spin" else {}))  # fmt: skip
     cmd = [sys.executable, __file__, "--child", cfg, "--z", f"{z:g}", "--rounds", str(args.rounds),
            "--steps", str(args.steps), "--frames", str(args.frames), "--cache-dir", str(args.cache_dir),
            "--codecs", codec]  # fmt: skip
@@ -178,9 +193,9 @@ def _config(
         print(out.stderr, file=sys.stderr)
         raise SystemExit(f"bench_cv_pool: the {cfg} child at {z:g} m failed (exit {out.returncode})")
     res = json.loads(out.stdout.strip().splitlines()[-1])
-    row = {"z": z, "config": cfg, "decode_threads": threads, "codec": codec, **res,
+    row = {"z": z, "config": cfg, "decode_threads": threads, "codec": codec, "read_ahead": ahead, **res,
            "load": os.getloadavg()[0], "wall_s": time.perf_counter() - t0}  # fmt: skip
-    print(f"z {z:g} m  {cfg:5s} decode {threads} {codec:8s}: {res['steps_per_s']:7.1f} steps/s  "
+    print(f"z {z:g} m  {cfg:5s} decode {threads} {codec:8s} read-ahead {ahead:3s}: {res['steps_per_s']:7.1f} steps/s  "
           f"{res['cpu_ms_per_step']:.2f} ms CPU/step  (load {row['load']:.2f})", file=sys.stderr)  # fmt: skip
     return row
 
@@ -188,11 +203,12 @@ def _config(
 def _table(rows: list[dict[str, Any]], refs: list[dict[str, Any]]) -> None:
     """The markdown table: each configuration, and its wall / CPU ratio to each reference at its z."""
     names = list(dict.fromkeys(r["reference"] for r in refs))
-    head = "| z | OpenCV pool | decode threads | cache | steps/s | CPU ms/step |"
+    head = "| z | OpenCV pool | decode threads | cache | read-ahead | steps/s | CPU ms/step |"
     head += "".join(f" vs viva-safeland {n} wall / CPU |" for n in names)
-    print(head + "\n|---|---|---:|---|---:|---:|" + "---|" * len(names))
+    print(head + "\n|---|---|---:|---|---|---:|---:|" + "---|" * len(names))
     for r in rows:
-        line = (f"| {r['z']:g} m | {r['config']} | {r['decode_threads']} | {r['codec']} | {r['steps_per_s']:.1f} | "
+        line = (f"| {r['z']:g} m | {r['config']} | {r['decode_threads']} | {r['codec']} | {r['read_ahead']} | "
+                f"{r['steps_per_s']:.1f} | "
                 f"{r['cpu_ms_per_step']:.2f} |")  # fmt: skip
         for n in names:
             ref = next(x for x in refs if x["reference"] == n and x["z"] == r["z"])
@@ -201,7 +217,7 @@ def _table(rows: list[dict[str, Any]], refs: list[dict[str, Any]]) -> None:
         print(line)
     for ref in refs:
         print(
-            f"| {ref['z']:g} m | viva-safeland {ref['reference']} | | | {ref['steps_per_s']:.1f} | {ref['cpu_ms_per_step']:.2f} |"
+            f"| {ref['z']:g} m | viva-safeland {ref['reference']} | | | | {ref['steps_per_s']:.1f} | {ref['cpu_ms_per_step']:.2f} |"
             + " |" * len(names)
         )
 
