@@ -310,8 +310,8 @@ def test_read_ahead_that_runs_late_pauses_and_a_bad_tile_still_fails_its_own_reg
     caches: dict[str, Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     """A worker that has not decoded half the tiles by the time the region comes (no core for it) is a strike;
-    AHEAD_STRIKES in a row pause read-ahead for AHEAD_PAUSE_FRAMES regions. The region decodes the rest itself,
-    never wrong pixels. A tile whose bytes are damaged fails the region of its frame with the cache's one-line error,
+    AHEAD_STRIKES in a row pause read-ahead for AHEAD_PAUSE_FRAMES regions, the next pause with no job in time
+    before it twice as long. The region decodes the rest itself, never wrong pixels. A tile whose bytes are damaged fails the region of its frame with the cache's one-line error,
     whether or not a worker read it ahead."""
     from viva_sitl.footage.tiles import read as tile_read
 
@@ -325,18 +325,27 @@ def test_read_ahead_that_runs_late_pauses_and_a_bad_tile_still_fails_its_own_reg
             time.sleep(0.001)
 
     monkeypatch.setattr(tile_read.TileCache, "_work_ahead", idle_worker)
+    monkeypatch.setattr(tile_read, "AHEAD_STRIKES", 3)
+    monkeypatch.setattr(tile_read, "AHEAD_PAUSE_FRAMES", 4)
     cache = TileCache(caches["yuv420z"], TileSettings(cache_bytes=1, decode_threads=2))
     plain = TileCache(caches["yuv420z"], TileSettings(cache_bytes=1, decode_threads=1))
     try:
         jobs = []
-        for k in range(2 + tile_read.AHEAD_STRIKES + 3):
+        for k in range(14):
             frame = k % FRAMES
             assert np.array_equal(_ahead_region(cache, frame), _ahead_region(plain, frame)), k
             jobs.append(cache.ahead_jobs)  # (no wait for the worker: it waits for the next region)
-        # a job after each read from the 3rd on, until the AHEAD_STRIKES-th late one paused them
-        strikes = tile_read.AHEAD_STRIKES
-        assert jobs == [0, 0, *range(1, strikes + 1), *[strikes] * 3], jobs
-        assert cache._ahead_paused[0] == tile_read.AHEAD_PAUSE_FRAMES - 3
+        # a job after each read from the 3rd on until the 3rd late one in a row pauses them for 4 reads; then 3
+        # more late ones, and a pause of 8
+        assert jobs == [0, 0, 1, 2, 3, 3, 3, 3, 3, 4, 5, 6, 6, 6], jobs
+        assert cache._ahead_paused[0] == 8 - 2 and cache._ahead_backoff[0] == 2
+        # a worker with a core again: after the pause, jobs in time, and the next pause would be the first's length
+        monkeypatch.setattr(tile_read.TileCache, "_work_ahead", real)
+        for k in range(14, 24):
+            frame = k % FRAMES
+            assert np.array_equal(_ahead_region(cache, frame), _ahead_region(plain, frame)), k
+            _worker_done(cache)
+        assert cache.ahead_jobs > 6 and cache._ahead_backoff[0] == 0 and cache._ahead_strikes[0] == 0
     finally:
         cache.close()
         plain.close()

@@ -37,11 +37,13 @@ _DECODED_TILE_CAPABILITIES = FootageCapabilities(region=RegionRead.TILES, region
 
 
 # read-ahead: a job that ran late (fewer than half its tiles done by the worker when the region came) AHEAD_STRIKES
-# times in a row pauses read-ahead for AHEAD_PAUSE_FRAMES regions of that level, then it is tried again. Why: a worker
-# that gets no core between two regions (2 cores, a slow codec beside OpenCV's 2-thread warp) only delays the warp's
-# threads and the region that waits for it
+# times in a row pauses read-ahead for AHEAD_PAUSE_FRAMES regions of that level, then it is tried again; each pause
+# that follows another with no job in time between them is twice as long, up to AHEAD_PAUSE_MAX_FRAMES. Why: a
+# worker that gets no core between two regions (2 cores, a slow codec beside OpenCV's 2-thread warp) only delays the
+# warp's threads and the region that waits for it
 AHEAD_STRIKES = 3
 AHEAD_PAUSE_FRAMES = 240
+AHEAD_PAUSE_MAX_FRAMES = 240 * 16
 
 
 class _ReadAhead:
@@ -139,6 +141,7 @@ class TileCache:
         self._ahead: dict[int, _ReadAhead] = {}
         self._ahead_strikes: dict[int, int] = {}
         self._ahead_paused: dict[int, int] = {}
+        self._ahead_backoff: dict[int, int] = {}  # pauses in a row with no job in time between them
         self._worker_job: Future[None] | None = None
         self._ahead_lock = threading.Lock()
         # the decoders release the GIL: misses of one region are decoded in parallel, by the caller's thread and
@@ -258,10 +261,12 @@ class TileCache:
             del self._ahead[level]
             late = 2 * len(job.done) < job.total
             strikes = self._ahead_strikes.get(level, 0) + 1 if late else 0
+            backoff = self._ahead_backoff.get(level, 0) if late else 0
             if strikes >= AHEAD_STRIKES:
-                self._ahead_paused[level] = AHEAD_PAUSE_FRAMES
-                strikes = 0
+                self._ahead_paused[level] = min(AHEAD_PAUSE_FRAMES << backoff, AHEAD_PAUSE_MAX_FRAMES)
+                strikes, backoff = 0, backoff + 1
             self._ahead_strikes[level] = strikes
+            self._ahead_backoff[level] = backoff
         self._work_ahead(job)
         if job.future is not None:
             job.future.result()
