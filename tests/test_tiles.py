@@ -309,9 +309,9 @@ def test_read_ahead_decodes_the_next_frame_while_the_caller_works_and_changes_no
 def test_read_ahead_that_runs_late_pauses_and_a_bad_tile_still_fails_its_own_region(
     caches: dict[str, Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    """A worker that has not decoded half the tiles by the time the region comes (no core for it) is a strike;
-    AHEAD_STRIKES in a row pause read-ahead for AHEAD_PAUSE_FRAMES regions, the next pause with no job in time
-    before it twice as long. The region decodes the rest itself, never wrong pixels. A tile whose bytes are damaged fails the region of its frame with the cache's one-line error,
+    """A worker that has not decoded half the tiles by the time the region comes (no core for it) ran late; a window
+    of AHEAD_WINDOW jobs mostly late pauses read-ahead for AHEAD_PAUSE_FRAMES regions, the next pause with no good
+    window before it twice as long. The region decodes the rest itself, never wrong pixels. A tile whose bytes are damaged fails the region of its frame with the cache's one-line error,
     whether or not a worker read it ahead."""
     from viva_sitl.footage.tiles import read as tile_read
 
@@ -325,27 +325,27 @@ def test_read_ahead_that_runs_late_pauses_and_a_bad_tile_still_fails_its_own_reg
             time.sleep(0.001)
 
     monkeypatch.setattr(tile_read.TileCache, "_work_ahead", idle_worker)
-    monkeypatch.setattr(tile_read, "AHEAD_STRIKES", 3)
+    monkeypatch.setattr(tile_read, "AHEAD_WINDOW", 4)
     monkeypatch.setattr(tile_read, "AHEAD_PAUSE_FRAMES", 4)
     cache = TileCache(caches["yuv420z"], TileSettings(cache_bytes=1, decode_threads=2))
     plain = TileCache(caches["yuv420z"], TileSettings(cache_bytes=1, decode_threads=1))
     try:
         jobs = []
-        for k in range(14):
+        for k in range(15):
             frame = k % FRAMES
             assert np.array_equal(_ahead_region(cache, frame), _ahead_region(plain, frame)), k
             jobs.append(cache.ahead_jobs)  # (no wait for the worker: it waits for the next region)
-        # a job after each read from the 3rd on until the 3rd late one in a row pauses them for 4 reads; then 3
-        # more late ones, and a pause of 8
-        assert jobs == [0, 0, 1, 2, 3, 3, 3, 3, 3, 4, 5, 6, 6, 6], jobs
-        assert cache._ahead_paused[0] == 8 - 2 and cache._ahead_backoff[0] == 2
+        # a job after each read from the 3rd on until a window of 4 late ones pauses them for 4 reads; then 4 more
+        # late ones, and a pause of 8
+        assert jobs == [0, 0, 1, 2, 3, 4, 4, 4, 4, 4, 5, 6, 7, 8, 8], jobs
+        assert cache._ahead_paused[0] == 8 - 1 and cache._ahead_backoff[0] == 2
         # a worker with a core again: after the pause, jobs in time, and the next pause would be the first's length
         monkeypatch.setattr(tile_read.TileCache, "_work_ahead", real)
-        for k in range(14, 24):
+        for k in range(15, 29):
             frame = k % FRAMES
             assert np.array_equal(_ahead_region(cache, frame), _ahead_region(plain, frame)), k
             _worker_done(cache)
-        assert cache.ahead_jobs > 6 and cache._ahead_backoff[0] == 0 and cache._ahead_strikes[0] == 0
+        assert cache.ahead_jobs > 8 and cache._ahead_backoff[0] == 0 and cache._ahead_paused[0] == 0
     finally:
         cache.close()
         plain.close()

@@ -36,12 +36,14 @@ _TILE_CAPABILITIES = FootageCapabilities(region=RegionRead.TILES)  # raw tiles: 
 _DECODED_TILE_CAPABILITIES = FootageCapabilities(region=RegionRead.TILES, region_decodes=True)
 
 
-# read-ahead: a job that ran late (fewer than half its tiles done by the worker when the region came) AHEAD_STRIKES
-# times in a row pauses read-ahead for AHEAD_PAUSE_FRAMES regions of that level, then it is tried again; each pause
-# that follows another with no job in time between them is twice as long, up to AHEAD_PAUSE_MAX_FRAMES. Why: a
-# worker that gets no core between two regions (2 cores, a slow codec beside OpenCV's 2-thread warp) only delays the
-# warp's threads and the region that waits for it
-AHEAD_STRIKES = 3
+# read-ahead: the jobs of a level are judged by windows of AHEAD_WINDOW: when more than half of a window's jobs ran
+# late (the worker had not done half the tiles when the region came), read-ahead of that level pauses for
+# AHEAD_PAUSE_FRAMES regions, then it is tried again; each pause that follows another with no good window between
+# them is twice as long, up to AHEAD_PAUSE_MAX_FRAMES. Why: a worker that gets no core between two regions (2 cores,
+# the compact cache's decode or 300 m's level-1 tiles beside OpenCV's 2-thread warp: 75-95 % of jobs late) only
+# delays the warp's threads and the region that waits for it; where it helps (the default cache at 50 m: ~95 % in
+# time, the late ones in bursts) it is never paused
+AHEAD_WINDOW = 16
 AHEAD_PAUSE_FRAMES = 240
 AHEAD_PAUSE_MAX_FRAMES = 240 * 16
 
@@ -139,9 +141,9 @@ class TileCache:
         self._read_ahead = base.read_ahead
         self._seq: dict[int, tuple[int, int]] = {}
         self._ahead: dict[int, _ReadAhead] = {}
-        self._ahead_strikes: dict[int, int] = {}
+        self._ahead_window: dict[int, list[bool]] = {}  # late or not, the jobs since the last judgement
         self._ahead_paused: dict[int, int] = {}
-        self._ahead_backoff: dict[int, int] = {}  # pauses in a row with no job in time between them
+        self._ahead_backoff: dict[int, int] = {}  # pauses in a row with no good window between them
         self._worker_job: Future[None] | None = None
         self._ahead_lock = threading.Lock()
         # the decoders release the GIL: misses of one region are decoded in parallel, by the caller's thread and
@@ -259,14 +261,16 @@ class TileCache:
                     job.todo.clear()  # the worker stops after its tile
                 return {}
             del self._ahead[level]
-            late = 2 * len(job.done) < job.total
-            strikes = self._ahead_strikes.get(level, 0) + 1 if late else 0
-            backoff = self._ahead_backoff.get(level, 0) if late else 0
-            if strikes >= AHEAD_STRIKES:
-                self._ahead_paused[level] = min(AHEAD_PAUSE_FRAMES << backoff, AHEAD_PAUSE_MAX_FRAMES)
-                strikes, backoff = 0, backoff + 1
-            self._ahead_strikes[level] = strikes
-            self._ahead_backoff[level] = backoff
+            window = self._ahead_window.setdefault(level, [])
+            window.append(2 * len(job.done) < job.total)  # late
+            if len(window) >= AHEAD_WINDOW:
+                backoff = self._ahead_backoff.get(level, 0)
+                if 2 * sum(window) > len(window):
+                    self._ahead_paused[level] = min(AHEAD_PAUSE_FRAMES << backoff, AHEAD_PAUSE_MAX_FRAMES)
+                    self._ahead_backoff[level] = backoff + 1
+                else:
+                    self._ahead_backoff[level] = 0
+                window.clear()
         self._work_ahead(job)
         if job.future is not None:
             job.future.result()
