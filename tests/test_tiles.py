@@ -310,8 +310,8 @@ def test_read_ahead_that_runs_late_pauses_and_a_bad_tile_still_fails_its_own_reg
     caches: dict[str, Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     """A worker that has not decoded half the tiles by the time the region comes (no core for it) ran late; a window
-    of AHEAD_WINDOW jobs mostly late pauses read-ahead for AHEAD_PAUSE_FRAMES regions, the next pause with no good
-    window before it twice as long. The region decodes the rest itself, never wrong pixels. A tile whose bytes are damaged fails the region of its frame with the cache's one-line error,
+    of AHEAD_WINDOW jobs mostly late (after the first, the warm-up) pauses read-ahead for AHEAD_PAUSE_FRAMES regions,
+    the next pause with no good window before it twice as long. The region decodes the rest itself, never wrong pixels. A tile whose bytes are damaged fails the region of its frame with the cache's one-line error,
     whether or not a worker read it ahead."""
     from viva_sitl.footage.tiles import read as tile_read
 
@@ -331,21 +331,21 @@ def test_read_ahead_that_runs_late_pauses_and_a_bad_tile_still_fails_its_own_reg
     plain = TileCache(caches["yuv420z"], TileSettings(cache_bytes=1, decode_threads=1))
     try:
         jobs = []
-        for k in range(15):
+        for k in range(19):
             frame = k % FRAMES
             assert np.array_equal(_ahead_region(cache, frame), _ahead_region(plain, frame)), k
             jobs.append(cache.ahead_jobs)  # (no wait for the worker: it waits for the next region)
-        # a job after each read from the 3rd on until a window of 4 late ones pauses them for 4 reads; then 4 more
-        # late ones, and a pause of 8
-        assert jobs == [0, 0, 1, 2, 3, 4, 4, 4, 4, 4, 5, 6, 7, 8, 8], jobs
+        # a job after each read from the 3rd on; the first window of 4 (warm-up) is not judged, the second, all
+        # late, pauses them for 4 reads; then 4 more late ones, and a pause of 8
+        assert jobs == [0, 0, 1, 2, 3, 4, 5, 6, 7, 8, 8, 8, 8, 8, 9, 10, 11, 12, 12], jobs
         assert cache._ahead_paused[0] == 8 - 1 and cache._ahead_backoff[0] == 2
         # a worker with a core again: after the pause, jobs in time, and the next pause would be the first's length
         monkeypatch.setattr(tile_read.TileCache, "_work_ahead", real)
-        for k in range(15, 29):
+        for k in range(19, 33):
             frame = k % FRAMES
             assert np.array_equal(_ahead_region(cache, frame), _ahead_region(plain, frame)), k
             _worker_done(cache)
-        assert cache.ahead_jobs > 8 and cache._ahead_backoff[0] == 0 and cache._ahead_paused[0] == 0
+        assert cache.ahead_jobs > 12 and cache._ahead_backoff[0] == 0 and cache._ahead_paused[0] == 0
     finally:
         cache.close()
         plain.close()

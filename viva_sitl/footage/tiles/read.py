@@ -36,7 +36,8 @@ _TILE_CAPABILITIES = FootageCapabilities(region=RegionRead.TILES)  # raw tiles: 
 _DECODED_TILE_CAPABILITIES = FootageCapabilities(region=RegionRead.TILES, region_decodes=True)
 
 
-# read-ahead: the jobs of a level are judged by windows of AHEAD_WINDOW: when more than half of a window's jobs ran
+# read-ahead: the jobs of a level are judged by windows of AHEAD_WINDOW (the first one is not: a flight's first
+# frames run late in bursts while threads, decoders and buffers warm up): when more than half of a window's jobs ran
 # late (the worker had not done half the tiles when the region came), read-ahead of that level pauses for
 # AHEAD_PAUSE_FRAMES regions, then it is tried again; each pause that follows another with no good window between
 # them is twice as long, up to AHEAD_PAUSE_MAX_FRAMES. Why: a worker that gets no core between two regions (2 cores,
@@ -265,7 +266,9 @@ class TileCache:
             window.append(2 * len(job.done) < job.total)  # late
             if len(window) >= AHEAD_WINDOW:
                 backoff = self._ahead_backoff.get(level, 0)
-                if 2 * sum(window) > len(window):
+                if level not in self._ahead_backoff:  # the first window: warm-up, not judged
+                    self._ahead_backoff[level] = 0
+                elif 2 * sum(window) > len(window):
                     self._ahead_paused[level] = min(AHEAD_PAUSE_FRAMES << backoff, AHEAD_PAUSE_MAX_FRAMES)
                     self._ahead_backoff[level] = backoff + 1
                 else:
