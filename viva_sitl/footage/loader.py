@@ -337,7 +337,8 @@ def open_footage(
     A heavy video (>= ~4K) is served from its automatic tile cache, built the first time (`cache`: the policy,
     None = the process's, `autocache.set_policy`; see viva_sitl.footage.autocache). `tiles`: how a tile cache is
     read (None: the process's, `tiles.set_process_settings`; nothing here reads the environment: the top floor
-    parses $VIVA_SITL_TILE_CACHE_MB / $VIVA_SITL_TILE_DECODE_THREADS, see viva_sitl.footage.tiles.settings).
+    parses $VIVA_SITL_TILE_CACHE_MB / $VIVA_SITL_TILE_DECODE_THREADS / $VIVA_SITL_TILE_READ_AHEAD, see
+    viva_sitl.footage.tiles.settings).
 
     Raises FootageError (a ValueError) with one clear message for anything unusable; nothing is left open then.
     """

@@ -470,8 +470,8 @@ class LandingEnv(gym.Env[Any, NDArray[np.float32]]):
 
 def gym_tile_settings() -> TileSettings:
     """How a gym environment reads tile caches: the documented $VIVA_SITL_TILE_CACHE_MB /
-    $VIVA_SITL_TILE_DECODE_THREADS, read here (the gym is the top floor for its users; the footage layer reads no
-    environment); a bad value is one FootageError line."""
+    $VIVA_SITL_TILE_DECODE_THREADS / $VIVA_SITL_TILE_READ_AHEAD, read here (the gym is the top floor for its users;
+    the footage layer reads no environment); a bad value is one FootageError line."""
     return TileSettings.from_environ(os.environ)
 
 
