@@ -4,6 +4,7 @@ the footage, land and re-arm there; Hold, Return and Land refuse targets beyond 
 
 from __future__ import annotations
 
+import gc
 import math
 import struct
 from collections.abc import Callable
@@ -20,6 +21,7 @@ from viva_sitl.autopilot import FlightMode
 EDGE_N_M = 102.4  # the finite synthetic field's half size
 BEYOND_N_M = 125.0
 NAN = math.nan
+SPEED = 4.0  # the strict-edge rig's sim speed
 HOLD, RTL, LAND = (FlightMode.AUTO_LOITER.custom_mode, FlightMode.AUTO_RTL.custom_mode,
                    FlightMode.AUTO_LAND.custom_mode)  # fmt: skip
 
@@ -92,7 +94,7 @@ def test_off_and_warning_fly_beyond_the_footage_land_and_rearm_there(
 @pytest.fixture(params=[pytest.param("udp", marks=pytest.mark.slow), "sim"])
 def rig(request: pytest.FixtureRequest, rig_factory: Callable[..., Rig], tmp_path: Path) -> Rig:
     """The finite field over UDP at speed 4 (slow: ~9 s a case), or on the sim-clock harness (the fast tier)."""
-    return rig_factory(request.param, speed=4.0, footage=_finite_field(tmp_path))
+    return rig_factory(request.param, speed=SPEED, footage=_finite_field(tmp_path))
 
 
 @pytest.mark.parametrize(("action", "mode"), [(2, HOLD), (3, RTL), (5, LAND)])
@@ -105,17 +107,29 @@ def test_strict_edge_refuses_targets_beyond_and_reacts_to_crossing(rig: Rig, act
     assert _reposition(client, EDGE_N_M - 8.0) == M.MAV_RESULT_ACCEPTED
     near = client.wait_for(lambda m: m.get_type() == "LOCAL_POSITION_NED" and m.x > EDGE_N_M - 12.0, 60.0)
     assert near is not None
-    # cross the edge in offboard (velocity north, streamed at 20 Hz as MAVSDK does) until the fence reacts
+    # cross the edge in offboard (velocity north, streamed at 20 Hz of sim time, as MAVSDK streams to a real-time
+    # PX4: 80 Hz of wall time at SPEED 4) until the fence reacts. The collector is off meanwhile: in a full suite
+    # (a 1.6 GB test process) the stream at 20 Hz of wall time went quiet for over PX4's 1 s of sim time
+    # (COM_OF_LOSS_T) twice, "Failsafe activated (no offboard): switching to Hold", and the edge was never reached
+    rate = 20.0 * SPEED
     vel = client.mav.set_position_target_local_ned_encode(0, 1, 1, 1, 2503, 0, 0, 0, 4.0, 0, 0, 0, 0, 0, 0, 0)
     reacted = None
-    for i in range(20 * 30):
-        client.send(vel)
-        if i == 10:
-            client.send(client.mav.command_long_encode(1, 1, M.MAV_CMD_DO_SET_MODE, 0, 129, 6, 0, 0, 0, 0, 0))
-        reacted = next((m for m in client.poll(0.05) if m.get_type() == "HEARTBEAT"
-                        and m.get_srcComponent() == 1 and m.custom_mode == mode and i > 20), None)  # fmt: skip
-        if reacted is not None:
-            break
+    gc_was_on = gc.isenabled()
+    gc.disable()
+    try:
+        for i in range(int(30 * rate)):
+            client.send(vel)
+            if i == int(0.5 * rate):
+                client.send(
+                    client.mav.command_long_encode(1, 1, M.MAV_CMD_DO_SET_MODE, 0, 129, 6, 0, 0, 0, 0, 0)
+                )
+            reacted = next((m for m in client.poll(1.0 / rate) if m.get_type() == "HEARTBEAT"
+                            and m.get_srcComponent() == 1 and m.custom_mode == mode and i > rate), None)  # fmt: skip
+            if reacted is not None:
+                break
+    finally:
+        if gc_was_on:
+            gc.enable()
     # on failure, say what the vehicle did instead (failed once in a full suite under load, never alone)
     if reacted is None:
         modes = list(dict.fromkeys(m.custom_mode for _, m in client.received
