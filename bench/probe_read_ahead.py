@@ -57,22 +57,18 @@ def phases(args: argparse.Namespace, codec: str, z: float) -> None:
     src = ours.sim.footage
     region, warp = src.region, cv2.warpPerspective
 
-    def timed_region(*a: Any, **k: Any) -> Any:
-        t = time.perf_counter()
-        try:
-            return region(*a, **k)
-        finally:
-            acc["region"] += time.perf_counter() - t
+    def timed(fn: Any, key: str) -> Any:
+        def call(*a: Any, **k: Any) -> Any:
+            t = time.perf_counter()
+            try:
+                return fn(*a, **k)
+            finally:
+                acc[key] += time.perf_counter() - t
 
-    def timed_warp(*a: Any, **k: Any) -> Any:
-        t = time.perf_counter()
-        try:
-            return warp(*a, **k)
-        finally:
-            acc["warp"] += time.perf_counter() - t
+        return call
 
-    src.region = timed_region
-    renderer.cv2.warpPerspective = timed_warp
+    src.region = timed(region, "region")
+    renderer.cv2.warpPerspective = timed(warp, "warp")
     try:
         ours.run()  # warm-up
         for key in acc:
@@ -190,14 +186,21 @@ def main() -> int:
     args = ap.parse_args()
     if not (args.phases or args.done_fraction or args.gil):
         ap.error("choose at least one of --phases, --done-fraction, --gil")
-    for codec in args.codecs:
-        for z in args.z:
-            if args.phases:
-                phases(args, codec, z)
-            if args.done_fraction:
-                done_fraction(args, codec, z)
-        if args.gil:
-            gil(args, codec)
+    try:
+        for codec in args.codecs:
+            for z in args.z:
+                if args.phases:
+                    phases(args, codec, z)
+                if args.done_fraction:
+                    done_fraction(args, codec, z)
+            if args.gil:
+                gil(args, codec)
+    except KeyboardInterrupt:
+        print(
+            "probe_read_ahead: interrupted; the probes above are complete, nothing else was written",
+            file=sys.stderr,
+        )
+        return 130
     return 0
 
 

@@ -252,6 +252,8 @@ class TileCache:
         """The tiles of (frame, level) decoded ahead, or {}: the caller decodes the job's tiles no worker has
         started, then waits for the one in progress. A job for another frame is dropped, unless this read repeats
         the level's last frame (two renders of one footage frame: the next one is still to come)."""
+        if not self._ahead:  # nothing planned (or no read-ahead at all): no lock on the region's path
+            return {}
         with self._ahead_lock:
             job = self._ahead.get(level)
             if job is None:
