@@ -29,6 +29,7 @@ from viva_sitl.frame import FrameMeta, RenderedFrame
 from viva_sitl.video import (
     FrameClient,
     FrameEncoding,
+    FramePublisher,
     FrameScheduler,
     VideoConfig,
     VideoPipeline,
@@ -495,25 +496,14 @@ def test_frame_socket_metadata_and_image(tmp_path: Path, encoding: FrameEncoding
             wait_for_first_frame(client, pipe)
             sent = [synthetic_frame(k) for k in range(10)]
             got = []
-            # each frame received before the next is sent: the publisher queues `queue_size` (2) frames and drops
-            # beyond that by design (a slow subscriber gets the newest frames); ten ~1 MB frames sent back to back
-            # overran it in one CI rehearsal where the client's ZeroMQ I/O thread lagged (9 of 10 arrived)
-            # ZeroMQ's PUB also drops silently at its own high-water mark (2 messages) when its I/O thread has not yet
-            # told the sending thread that earlier messages left; one CI run lost frame 4 of 10 that way with the
-            # subscriber idle. A frame that does not arrive is sent once more (a dropped frame never arrives late, so
-            # no duplicate); more than one resend in ten frames fails.
-            resent = 0
+            # each frame received before the next is sent: the pipeline's queue (queue_size 2) is empty at each
+            # submit, and the publisher reads ZeroMQ's send credits before each frame, so none may be lost (a CI run
+            # lost 2 of 10 here before it did: test_a_subscriber_that_keeps_up_loses_no_frame_however_fast_they_come)
             for f in sent:
-                item = None
-                for _attempt in range(2):
-                    submit_and_wait_written(pipe, f)
-                    item = client.receive(timeout_s=5.0)
-                    if item is not None:
-                        break
-                    resent += 1
-                assert item is not None, f"frame {f.meta.frame_counter} did not arrive twice ({len(got)} did)"
+                submit_and_wait_written(pipe, f)
+                item = client.receive(timeout_s=5.0)
+                assert item is not None, f"frame {f.meta.frame_counter} did not arrive ({len(got)} did)"
                 got.append(item)
-            assert resent <= 1, f"{resent} of 10 frames had to be sent again"
             assert client.receive(timeout_s=0.2) is None, "more frames than were sent"
     assert [m["frame_counter"] for _, m in got] == list(range(10))
     for (img, meta), f in zip(got, sent, strict=True):
@@ -587,6 +577,44 @@ def test_frame_socket_wire_format_errors_and_latest_only() -> None:
     finally:
         pub.close(0)
         ctx.term()
+
+
+def test_a_subscriber_that_keeps_up_loses_no_frame_however_fast_they_come() -> None:
+    """A frame-socket client that has received every frame before the next is published (a quick lockstep pilot)
+    gets every frame, however little time passes between them. libzmq's PUB read the subscriber's send credits at most
+    once per ~1 ms, so in this loop it dropped 1 frame in 3 silently (sndhwm 2) until the publisher read them before
+    each send (bench/probe_frame_socket_credit.py measures both)."""
+    pub = FramePublisher("tcp://127.0.0.1:*", sndhwm=2)
+    pub.open()
+    try:
+        with FrameClient(pub.bound_endpoint, latest_only=False, rcvhwm=100) as client:
+            deadline = time.monotonic() + 10.0
+            while (
+                client.receive(timeout_s=0.05) is None
+            ):  # ZeroMQ's slow joiner: probe until the subscription is live
+                assert time.monotonic() < deadline, "subscription never reached the publisher"
+                pub.write(synthetic_frame(999))
+            while client.receive(timeout_s=0.2) is not None:
+                pass
+            # small frames made beforehand: the loop sends one every ~0.1 ms, well inside libzmq's throttle
+            frames = [
+                RenderedFrame(np.full((24, 32, 3), k % 256, np.uint8), make_meta(k, 0.0, 32, 24))
+                for k in range(600)
+            ]
+            lost = []
+            for k, frame in enumerate(frames):
+                pub.write(frame)
+                item = client.receive(timeout_s=2.0)
+                if item is None:
+                    lost.append(k)
+                    if len(lost) == 5:  # each costs the 2 s wait: enough to say so
+                        break
+                else:
+                    assert item[1]["frame_counter"] == k, (k, item[1]["frame_counter"])
+            assert not lost, f"frames lost: {lost} (of {k + 1} sent)"
+            assert pub.would_block == 0
+    finally:
+        pub.close()
 
 
 # -- real time: dropping, scheduler, recorder ------------------------------------------------------------------------

@@ -160,6 +160,13 @@ class FramePublisher:
         if self._sock is None:
             raise RuntimeError("FramePublisher.write before open()")
         parts = encode_message(frame, self.encoding, self.jpeg_quality)
+        # The PUB judges whether a subscriber's queue is full (sndhwm messages) from credits its I/O thread sends back
+        # as messages leave; the sending thread reads those credits on send at most once per ~1 ms (libzmq's command
+        # throttle, max_command_delay). Frames sent less than ~1 ms apart were therefore dropped silently even for a
+        # subscriber that had received every earlier one: 1 frame in 3 in a send-receive loop, so a quick lockstep
+        # pilot's frames depended on the machine's speed (bench/probe_frame_socket_credit.py). Reading ZMQ_EVENTS
+        # processes the pending credits first: only a subscriber that is really behind loses frames.
+        self._sock.getsockopt(zmq.EVENTS)
         try:
             self._sock.send_multipart(parts, flags=zmq.NOBLOCK, copy=False)
         except zmq.Again:
